@@ -1,0 +1,21 @@
+"""mrjax: JAX-accelerated, differentiable identification of magnetorheological damper models.
+
+Implements Kwok et al. (2006): the tanh hysteretic model, Bingham, Bouc-Wen, modified Bouc-Wen
+(Spencer) and Dahl models; a batched particle swarm with the paper's statistical stop; a
+Levenberg-Marquardt polish through optimistix; and current-dependent (generalized) models.
+"""
+
+__version__ = "0.1.0"
+
+import jax as _jax
+
+# Fitting needs float64 (the polish, the std-errors, long RMS sums); the swarm may still run in
+# float32 where asked. Set MRJAX_X64=0 to leave JAX's default alone.
+import os as _os
+
+if _os.environ.get("MRJAX_X64", "1") != "0":
+    _jax.config.update("jax_enable_x64", True)
+
+from . import data as data
+from . import models as models
+from ._errors import InputError as InputError

@@ -1,0 +1,245 @@
+"""Test conditions and padded, masked batches of them.
+
+A :class:`Condition` is one measured (or simulated) test on the host, in SI units. A
+:class:`Batch` stacks conditions of different lengths and sample rates into `(C, T)` arrays,
+padded at the end and masked, so that fitting code can `vmap` over conditions.
+
+Padding holds the displacement at its last value with zero velocity and force; the padded
+sample interval repeats the last real one. Causal models (all ODE models here) therefore never
+see padding before the real samples end, and the mask removes it from every fitness.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from .._errors import InputError
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Condition:
+    """One test condition, in SI units.
+
+    **Fields:**
+
+    - `label`: name of the test (file stem, or the CSV `condition` value).
+    - `current`: coil current [A], or `None` if unknown.
+    - `frequency`: excitation frequency [Hz], or `None`.
+    - `amplitude`: displacement amplitude [m], or `None`.
+    - `t`: time [s], strictly increasing, shape (T,).
+    - `x`: displacement [m], shape (T,).
+    - `xdot`: velocity [m/s], shape (T,).
+    - `force`: measured force [N], shape (T,).
+    - `source`: where it came from (file path), for error messages.
+    """
+
+    label: str
+    current: float | None
+    frequency: float | None
+    amplitude: float | None
+    t: np.ndarray
+    x: np.ndarray
+    xdot: np.ndarray
+    force: np.ndarray
+    source: str = ""
+
+    def __post_init__(self):
+        where = self.source or self.label
+        arrays = {}
+        for name in ("t", "x", "xdot", "force"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.ndim != 1:
+                raise InputError(f"{where}: column {name} must be one-dimensional, got shape {a.shape}")
+            arrays[name] = a
+        lengths = {k: v.shape[0] for k, v in arrays.items()}
+        if len(set(lengths.values())) != 1:
+            raise InputError(f"{where}: mismatched column lengths {lengths}")
+        n = lengths["t"]
+        if n == 0:
+            raise InputError(f"{where}: condition has no samples")
+        if n < 3:
+            raise InputError(f"{where}: condition has only {n} sample(s); at least 3 are needed")
+        for name, a in arrays.items():
+            bad = np.flatnonzero(~np.isfinite(a))
+            if bad.size:
+                raise InputError(
+                    f"{where}: column {name} has a non-finite value ({a[bad[0]]}) at row {bad[0]}"
+                )
+        dt = np.diff(arrays["t"])
+        bad = np.flatnonzero(dt <= 0)
+        if bad.size:
+            i = int(bad[0]) + 1
+            raise InputError(
+                f"{where}: time is not strictly increasing at row {i} "
+                f"(t[{i - 1}]={arrays['t'][i - 1]:g} s, t[{i}]={arrays['t'][i]:g} s)"
+            )
+        for name in ("current", "frequency", "amplitude"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            v = float(v)
+            if not math.isfinite(v):
+                raise InputError(f"{where}: {name} is not finite ({v})")
+            if v < 0:
+                unit = {"current": "A", "frequency": "Hz", "amplitude": "m"}[name]
+                raise InputError(f"{where}: {name} must be non-negative, got {v:g} {unit}")
+            object.__setattr__(self, name, v)
+        for k, v in arrays.items():
+            v.setflags(write=False)
+            object.__setattr__(self, k, v)
+        object.__setattr__(self, "label", str(self.label))
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples T."""
+        return int(self.t.shape[0])
+
+    @property
+    def dt(self) -> np.ndarray:
+        """Interval after each sample [s], shape (T,); the last entry repeats the previous."""
+        d = np.diff(self.t)
+        return np.append(d, d[-1])
+
+    @property
+    def sample_rate(self) -> float:
+        """Median sample rate [Hz]."""
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    def __repr__(self) -> str:
+        def f(v, unit, scale=1.0):
+            return "?" if v is None else f"{v * scale:g} {unit}"
+
+        return (
+            f"Condition({self.label!r}, i={f(self.current, 'A')}, f={f(self.frequency, 'Hz')}, "
+            f"A={f(self.amplitude, 'mm', 1e3)}, T={self.n_samples}, fs={self.sample_rate:g} Hz)"
+        )
+
+
+def _nan_if_none(v: float | None) -> float:
+    return np.nan if v is None else float(v)
+
+
+class Batch(eqx.Module):
+    """A batch of C conditions, padded to a common length T and masked.
+
+    Arrays (all `(C, T)` unless stated): `t` [s], `x` [m], `xdot` [m/s], `force` [N],
+    `dt` [s] (interval after each sample), `mask` (True on real samples); `current` [A],
+    `frequency` [Hz], `amplitude` [m] of shape (C,), NaN where unknown. `labels` is static.
+    """
+
+    t: Float[Array, "C T"]
+    x: Float[Array, "C T"]
+    xdot: Float[Array, "C T"]
+    force: Float[Array, "C T"]
+    dt: Float[Array, "C T"]
+    mask: Bool[Array, "C T"]
+    current: Float[Array, " C"]
+    frequency: Float[Array, " C"]
+    amplitude: Float[Array, " C"]
+    labels: tuple[str, ...] = eqx.field(static=True)
+
+    @property
+    def n_conditions(self) -> int:
+        """Number of conditions C."""
+        return int(self.x.shape[0])
+
+    @property
+    def length(self) -> int:
+        """Padded length T."""
+        return int(self.x.shape[1])
+
+    @property
+    def n_samples(self) -> np.ndarray:
+        """Real samples per condition, shape (C,)."""
+        return np.asarray(self.mask).sum(axis=1)
+
+    def __len__(self) -> int:
+        return self.n_conditions
+
+    def condition(self, i: int) -> Condition:
+        """Condition `i` with its padding removed."""
+        n = int(self.n_samples[i])
+
+        def g(a):
+            return np.asarray(a[i, :n])
+
+        def meta(a):
+            v = float(np.asarray(a[i]))
+            return None if math.isnan(v) else v
+
+        return Condition(
+            self.labels[i], meta(self.current), meta(self.frequency), meta(self.amplitude),
+            g(self.t), g(self.x), g(self.xdot), g(self.force),
+        )
+
+    def conditions(self) -> list[Condition]:
+        """All conditions, unpadded."""
+        return [self.condition(i) for i in range(self.n_conditions)]
+
+    def subset(self, index: Sequence[int] | np.ndarray) -> Batch:
+        """The conditions at `index` (ints or a boolean mask), re-padded to their own length."""
+        idx = np.arange(self.n_conditions)[np.asarray(index)]
+        return make_batch([self.condition(int(i)) for i in idx])
+
+    def __repr__(self) -> str:
+        return f"Batch(C={self.n_conditions}, T={self.length}, labels={list(self.labels)[:4]}...)"
+
+
+def make_batch(
+    conditions: Sequence[Condition], *, length: int | None = None, dtype=None
+) -> Batch:
+    """Stack conditions into a padded, masked :class:`Batch`.
+
+    **Arguments:**
+
+    - `conditions`: one or more :class:`Condition`.
+    - `length`: padded length T (default: the longest condition).
+    - `dtype`: float dtype of the arrays (default: JAX's default float, float64 under x64).
+
+    Raises :class:`mrjax.InputError` for an empty list or a `length` shorter than a condition.
+    """
+    conditions = list(conditions)
+    if not conditions:
+        raise InputError("no test conditions given (empty list or no data files)")
+    for c in conditions:
+        if not isinstance(c, Condition):
+            raise InputError(f"expected mrjax.data.Condition objects, got {type(c).__name__}")
+    longest = max(c.n_samples for c in conditions)
+    T = longest if length is None else int(length)
+    if T < longest:
+        raise InputError(f"length={T} is shorter than the longest condition ({longest} samples)")
+    C = len(conditions)
+    out = {k: np.zeros((C, T)) for k in ("t", "x", "xdot", "force", "dt")}
+    mask = np.zeros((C, T), dtype=bool)
+    for i, c in enumerate(conditions):
+        n = c.n_samples
+        dt = c.dt
+        out["t"][i, :n] = c.t
+        out["t"][i, n:] = c.t[-1] + dt[-1] * np.arange(1, T - n + 1)
+        out["x"][i, :n] = c.x
+        out["x"][i, n:] = c.x[-1]
+        out["xdot"][i, :n] = c.xdot
+        out["force"][i, :n] = c.force
+        out["dt"][i, :n] = dt
+        out["dt"][i, n:] = dt[-1]
+        mask[i, :n] = True
+    fdt = dtype if dtype is not None else jnp.zeros(()).dtype
+
+    def meta(name):
+        return jnp.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
+
+    return Batch(
+        **{k: jnp.asarray(v, dtype=fdt) for k, v in out.items()},
+        mask=jnp.asarray(mask),
+        current=meta("current"),
+        frequency=meta("frequency"),
+        amplitude=meta("amplitude"),
+        labels=tuple(c.label for c in conditions),
+    )

@@ -1,0 +1,198 @@
+"""The model abstraction shared by every damper model.
+
+A model is an immutable `equinox.Module`. It declares its parameter names, SI units, default
+bounds and which parameters enter the force linearly, and implements one method,
+:meth:`AbstractModel.design`, that returns the force as an affine function of the linear
+parameters:
+
+$$ f(t) = \\sum_j A_j(t;\\theta_{nl})\\,\\theta_{lin,j} + b(t;\\theta_{nl}). $$
+
+`force` is derived from `design`, so the separable (variable projection) swarm and the plain
+simulation can never disagree.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._integrate import choose_substeps, max_abs
+
+#: Sub-steps used when `substeps="auto"` but the inputs are traced (inside `jit`/`vmap`), so no
+#: stiffness estimate can be made. `mrjax.fit` always resolves the count on the host instead.
+TRACED_SUBSTEPS = 8
+
+
+class AbstractModel(eqx.Module):
+    """Base class of the damper models.
+
+    Class attributes (the public contract):
+
+    - `name`: registry name, e.g. `"kwok"`.
+    - `param_names`: parameter names in vector order.
+    - `units`: SI unit of each parameter.
+    - `default_lower`, `default_upper`: default bounds for fitting a damper of up to about 2 kN.
+    - `linear_params`: names of the parameters the force is linear in (for fixed others).
+    - `dynamic`: whether the model has internal state integrated by the RK4 scan.
+
+    Instance field:
+
+    - `substeps`: RK4 sub-steps per sample for dynamic models; `None` chooses automatically.
+    """
+
+    name: ClassVar[str]
+    param_names: ClassVar[tuple[str, ...]]
+    units: ClassVar[tuple[str, ...]]
+    default_lower: ClassVar[tuple[float, ...]]
+    default_upper: ClassVar[tuple[float, ...]]
+    linear_params: ClassVar[tuple[str, ...]]
+    dynamic: ClassVar[bool] = False
+    description: ClassVar[str] = ""
+
+    substeps: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if self.substeps is not None and (int(self.substeps) != self.substeps or self.substeps < 1):
+            raise ValueError(f"substeps must be a positive integer or None, got {self.substeps!r}")
+
+    # ----------------------------------------------------------------------------- metadata
+    @property
+    def n_params(self) -> int:
+        """Number of parameters P."""
+        return len(self.param_names)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Default `(lower, upper)` bounds as float arrays of shape (P,), in SI units."""
+        return np.asarray(self.default_lower, float), np.asarray(self.default_upper, float)
+
+    @property
+    def linear_index(self) -> np.ndarray:
+        """Indices of the linear parameters, in `param_names` order."""
+        return np.array([self.param_names.index(n) for n in self.linear_params], dtype=int)
+
+    @property
+    def nonlinear_index(self) -> np.ndarray:
+        """Indices of the parameters that are not linear."""
+        lin = set(self.linear_params)
+        return np.array([i for i, n in enumerate(self.param_names) if n not in lin], dtype=int)
+
+    def default_start(self) -> np.ndarray:
+        """A start vector inside the default bounds (used by `method="lm"`), shape (P,)."""
+        lo, hi = self.bounds
+        return np.asarray(getattr(self, "_start", 0.5 * (lo + hi)), float)
+
+    def params(self, **values: float) -> np.ndarray:
+        """Build a parameter vector from keyword values, e.g. `model.params(c=1232., ...)`.
+
+        Raises `ValueError` naming missing or unknown parameters.
+        """
+        unknown = set(values) - set(self.param_names)
+        missing = [n for n in self.param_names if n not in values]
+        if unknown or missing:
+            raise ValueError(
+                f"model {self.name!r}: unknown parameters {sorted(unknown)}, missing {missing}; "
+                f"expected {list(self.param_names)}"
+            )
+        return np.array([float(values[n]) for n in self.param_names])
+
+    def with_substeps(self, substeps: int | None) -> AbstractModel:
+        """Return a copy with a fixed RK4 sub-step count (or `None` for automatic)."""
+        return type(self)(substeps=substeps)
+
+    # ----------------------------------------------------------------------------- dynamics
+    def stiffness(self, theta: ArrayLike, vmax: float) -> float:
+        """Host-side estimate of the largest state-equation rate $|\\lambda|$ [1/s].
+
+        **Arguments:** `theta` parameters (P,) or a `(lower, upper)`-like array of rows
+        (the maximum over rows is taken); `vmax` largest |velocity| [m/s].
+        """
+        return 0.0
+
+    def resolve_substeps(self, theta: ArrayLike, xdot: ArrayLike, dt: ArrayLike) -> int:
+        """Sub-step count for concrete inputs: `self.substeps` if set, else from `stiffness`.
+
+        `theta` may be one vector (P,) or several rows (N, P) (e.g. both bounds); the stiffest
+        row decides.
+        """
+        if not self.dynamic:
+            return 1
+        if self.substeps is not None:
+            return int(self.substeps)
+        rows = np.atleast_2d(np.asarray(theta, float))
+        vmax = max_abs(xdot)
+        rate = max(self.stiffness(r, vmax) for r in rows)
+        return choose_substeps(rate, max_abs(dt))
+
+    def _substeps_for(self, theta, xdot, dt) -> int:
+        if self.substeps is not None or not self.dynamic:
+            return 1 if not self.dynamic else int(self.substeps)
+        if any(isinstance(a, jax.core.Tracer) for a in (theta, xdot, dt)):
+            return TRACED_SUBSTEPS
+        th = np.asarray(theta, float)
+        return self.resolve_substeps(th if th.ndim == 1 else th.reshape(-1, th.shape[-1]), xdot, dt)
+
+    # ----------------------------------------------------------------------------- force
+    @abc.abstractmethod
+    def design(
+        self,
+        theta: Float[ArrayLike, "*T P"],
+        x: Float[ArrayLike, " T"],
+        xdot: Float[ArrayLike, " T"],
+        dt: Float[ArrayLike, "*T"],
+    ) -> tuple[Float[Array, "T L"], Float[Array, " T"]]:
+        """Affine form of the force in the linear parameters.
+
+        **Arguments:** as :meth:`force`. Entries of `theta` at linear positions are ignored.
+
+        **Returns:** `(A, b)` with `A` of shape (T, L) [N per unit of each linear parameter]
+        and `b` of shape (T,) [N], so that `force = A @ theta[linear_index] + b`.
+        """
+
+    def force(
+        self,
+        theta: Float[ArrayLike, "*T P"],
+        x: Float[ArrayLike, " T"],
+        xdot: Float[ArrayLike, " T"],
+        dt: Float[ArrayLike, "*T"] = 1e-3,
+    ) -> Float[Array, " T"]:
+        """Damper force [N] for a displacement record.
+
+        **Arguments:**
+
+        - `theta`: parameters in `param_names` order, shape (P,), or per sample (T, P) for a
+            time-varying (current-driven) model.
+        - `x`: displacement [m], shape (T,).
+        - `xdot`: velocity [m/s], shape (T,).
+        - `dt`: sample interval [s], scalar or (T,); used by dynamic models only.
+
+        **Returns:** force [N], shape (T,). Parameters that make an ODE diverge give non-finite
+        values; this never raises.
+        """
+        theta = jnp.asarray(theta)
+        A, b = self.design(theta, x, xdot, dt)
+        lin = theta[..., self.linear_index]
+        return jnp.sum(A * lin, axis=-1) + b
+
+
+def split_theta(theta: Array, names: tuple[str, ...], *wanted: str) -> list[Array]:
+    """Columns of `theta` (shape (P,) or (T, P)) by name, each of shape () or (T,)."""
+    return [theta[..., names.index(w)] for w in wanted]
+
+
+def safe_abs_pow(z: Array, n: Array) -> Array:
+    """$|z|^n$ with finite value and gradients everywhere, including z = 0 and any n > 0.
+
+    `jnp.abs(z) ** n` has a NaN gradient with respect to `n` at z = 0 (0 * log 0) and an infinite
+    one with respect to z for n < 1; this form returns 0 with zero gradient there.
+    """
+    a = jnp.abs(z)
+    pos = a > 0
+    a_safe = jnp.where(pos, a, 1.0)
+    return jnp.where(pos, a_safe**n, 0.0)

@@ -1,0 +1,187 @@
+"""ODE-based hysteretic models: Bouc-Wen (eq 2-3), modified Bouc-Wen (eq 4-6) and Dahl.
+
+All three define only their right-hand side; the shared RK4 `lax.scan` in `_integrate` steps it.
+
+A note on the scale of z. The equations are invariant under $z \\to s z$ with
+$\\alpha \\to \\alpha/s$, $\\delta \\to s\\delta$, $\\beta, \\gamma \\to s^{1-n}\\beta, s^{1-n}\\gamma$,
+so one of (alpha, delta, beta, gamma) is redundant. mrjax's *default bounds* assume a
+dimensionless z of order one, so `alpha` is in N and `delta`, `beta`, `gamma` in 1/m.
+Spencer et al.'s 1997 set (PAPER.md) measures z in metres (alpha in N/m, beta and gamma in
+m^-n); the equations are the same and `force` accepts either.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._base import AbstractModel, safe_abs_pow, split_theta
+from ._integrate import rk4_scan
+
+
+def _bw_zdot(z, u, delta, beta, gamma, n):
+    """Bouc-Wen evolution $\\dot z$ for relative velocity `u`, written NaN-safely as
+    $\\delta u - |z|^n (\\beta u + \\gamma |u| \\mathrm{sign}(z))$, which equals
+    $\\delta u - \\beta u |z|^n - \\gamma z |u| |z|^{n-1}$."""
+    return delta * u - safe_abs_pow(z, n) * (beta * u + gamma * jnp.abs(u) * jnp.sign(z))
+
+
+def _bw_rate(delta, beta, gamma, n, vmax):
+    """|d zdot / d z| bound: n (|beta|+|gamma|) |z|max^(n-1) vmax, |z|max the steady state."""
+    s = abs(beta) + abs(gamma)
+    if s <= 0 or not np.isfinite(s):
+        return 0.0
+    n = max(float(n), 1e-6)
+    zmax = max((abs(delta) / s) ** (1.0 / n), 1e-12)
+    return n * s * zmax ** (n - 1.0) * vmax + 0.0
+
+
+class BoucWen(AbstractModel):
+    """Bouc-Wen model (eq 2-3), z(0) = 0.
+
+    $$ f = c\\dot x + k x + \\alpha z + f_0,\\qquad
+       \\dot z = \\delta\\dot x - \\beta\\dot x|z|^n - \\gamma z|\\dot x||z|^{n-1}. $$
+
+    Parameters: `c` [N·s/m], `k` [N/m], `alpha` [N] (z dimensionless), `f0` [N],
+    `delta` [1/m], `beta` [1/m], `gamma` [1/m], `n` [-]. Linear: c, k, alpha, f0.
+    """
+
+    name: ClassVar[str] = "bouc_wen"
+    param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0", "delta", "beta", "gamma", "n")
+    units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "N", "1/m", "1/m", "1/m", "-")
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, -1000.0, 1.0, 0.0, 0.0, 1.0)
+    default_upper: ClassVar[tuple[float, ...]] = (
+        20000.0, 20000.0, 2500.0, 1000.0, 5000.0, 5000.0, 5000.0, 3.0,
+    )
+    linear_params: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0")
+    dynamic: ClassVar[bool] = True
+    description: ClassVar[str] = "Bouc-Wen: f = c*v + k*x + alpha*z + f0, z' = BW(delta, beta, gamma, n)"
+
+    @property
+    def _start(self):
+        return np.array([2000.0, 2000.0, 300.0, 0.0, 500.0, 250.0, 250.0, 2.0])
+
+    def stiffness(self, theta, vmax):
+        d, b, g, n = (float(theta[self.param_names.index(k)]) for k in ("delta", "beta", "gamma", "n"))
+        return _bw_rate(d, b, g, n, vmax)
+
+    def design(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        names = self.param_names
+
+        def rhs(state, xi, vi, p):
+            delta, beta, gamma, n = split_theta(p, names, "delta", "beta", "gamma", "n")
+            return _bw_zdot(state, vi, delta, beta, gamma, n)
+
+        m = self._substeps_for(theta, xdot, dt)
+        z = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)[:, 0]
+        one = jnp.ones_like(xdot)
+        return jnp.stack([xdot, x, z, one], axis=-1), jnp.zeros_like(xdot)
+
+
+class ModifiedBoucWen(AbstractModel):
+    """Modified Bouc-Wen model of Spencer et al. 1997 (eq 4-6), y(0) = x(0), z(0) = 0.
+
+    $$ f = c_1\\dot y + k_1 x + f_0,\\qquad
+       \\dot y = \\frac{c_0\\dot x + k_0(x-y) + \\alpha z}{c_0 + c_1},$$
+    $$ \\dot z = \\delta(\\dot x-\\dot y) - \\beta(\\dot x-\\dot y)|z|^n
+                - \\gamma z|\\dot x-\\dot y||z|^{n-1}. $$
+
+    Parameters: `c0` [N·s/m], `k0` [N/m], `c1` [N·s/m] (the paper's d1), `k1` [N/m], `alpha`
+    [N] (z dimensionless; N/m for Spencer's z in metres), `delta` [1/m] (Spencer's A),
+    `beta` [1/m], `gamma` [1/m], `n` [-], `f0` [N] ($= -k_1 x_0$). Linear: k1, f0.
+    """
+
+    name: ClassVar[str] = "modified_bouc_wen"
+    param_names: ClassVar[tuple[str, ...]] = (
+        "c0", "k0", "c1", "k1", "alpha", "delta", "beta", "gamma", "n", "f0",
+    )
+    units: ClassVar[tuple[str, ...]] = (
+        "N*s/m", "N/m", "N*s/m", "N/m", "N", "1/m", "1/m", "1/m", "-", "N",
+    )
+    default_lower: ClassVar[tuple[float, ...]] = (
+        0.0, 0.0, 100.0, -20000.0, 0.0, 1.0, 0.0, 0.0, 1.0, -1000.0,
+    )
+    default_upper: ClassVar[tuple[float, ...]] = (
+        20000.0, 50000.0, 100000.0, 20000.0, 2500.0, 5000.0, 5000.0, 5000.0, 3.0, 1000.0,
+    )
+    linear_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
+    dynamic: ClassVar[bool] = True
+    description: ClassVar[str] = "Modified Bouc-Wen (Spencer 1997): f = c1*y' + k1*x + f0"
+
+    @property
+    def _start(self):
+        return np.array([2000.0, 1000.0, 20000.0, 0.0, 300.0, 500.0, 250.0, 250.0, 2.0, 0.0])
+
+    def stiffness(self, theta, vmax):
+        idx = self.param_names.index
+        d, b, g, n = (float(theta[idx(k)]) for k in ("delta", "beta", "gamma", "n"))
+        c0, c1, k0 = float(theta[idx("c0")]), float(theta[idx("c1")]), float(theta[idx("k0")])
+        y_rate = abs(k0) / max(abs(c0 + c1), 1e-12)
+        return max(_bw_rate(d, b, g, n, vmax), y_rate)
+
+    def design(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        names = self.param_names
+
+        def ydot_of(state, xi, vi, p):
+            c0, k0, c1, alpha = split_theta(p, names, "c0", "k0", "c1", "alpha")
+            y, z = state[0], state[1]
+            return (c0 * vi + k0 * (xi - y) + alpha * z) / (c0 + c1)
+
+        def rhs(state, xi, vi, p):
+            delta, beta, gamma, n = split_theta(p, names, "delta", "beta", "gamma", "n")
+            yd = ydot_of(state, xi, vi, p)
+            return jnp.stack([yd, _bw_zdot(state[1], vi - yd, delta, beta, gamma, n)])
+
+        m = self._substeps_for(theta, xdot, dt)
+        y0 = jnp.stack([x[0], jnp.zeros((), x.dtype)])
+        states = rk4_scan(rhs, y0, theta, x, xdot, dt, m)
+        th = jnp.broadcast_to(theta, (x.shape[0], theta.shape[-1])) if theta.ndim == 1 else theta
+        yd = ydot_of(states.T, x, xdot, th)
+        (c1,) = split_theta(theta, names, "c1")
+        one = jnp.ones_like(xdot)
+        return jnp.stack([x, one], axis=-1), c1 * yd
+
+
+class Dahl(AbstractModel):
+    """Dahl-type model: $f = c\\dot x + k x + \\alpha w + f_0$,
+    $\\dot w = \\rho(\\dot x - |\\dot x| w)$, w(0) = 0.
+
+    Parameters: `c` [N·s/m], `k` [N/m], `alpha` [N], `rho` [1/m], `f0` [N].
+    Linear: c, k, alpha, f0.
+    """
+
+    name: ClassVar[str] = "dahl"
+    param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "rho", "f0")
+    units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "1/m", "N")
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, 1.0, -1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (20000.0, 20000.0, 2500.0, 10000.0, 1000.0)
+    linear_params: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0")
+    dynamic: ClassVar[bool] = True
+    description: ClassVar[str] = "Dahl: f = c*v + k*x + alpha*w + f0, w' = rho*(v - |v| w)"
+
+    @property
+    def _start(self):
+        return np.array([2000.0, 2000.0, 300.0, 1000.0, 0.0])
+
+    def stiffness(self, theta, vmax):
+        return abs(float(theta[self.param_names.index("rho")])) * vmax
+
+    def design(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        names = self.param_names
+
+        def rhs(state, xi, vi, p):
+            (rho,) = split_theta(p, names, "rho")
+            return rho * (vi - jnp.abs(vi) * state)
+
+        m = self._substeps_for(theta, xdot, dt)
+        w = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)[:, 0]
+        one = jnp.ones_like(xdot)
+        return jnp.stack([xdot, x, w, one], axis=-1), jnp.zeros_like(xdot)

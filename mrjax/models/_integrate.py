@@ -1,0 +1,124 @@
+"""The one integrator of mrjax: fixed-step RK4 over a sampled record, as a `lax.scan`.
+
+Every ODE model (Bouc-Wen, modified Bouc-Wen, Dahl) only defines its right-hand side
+`rhs(state, x, xdot, theta) -> dstate/dt`; this module steps it over the record.
+
+Inside each sample interval $[t_k, t_{k+1}]$ the excitation is interpolated linearly,
+$x(t_k + s\\,\\Delta t_k) = x_k + s (x_{k+1} - x_k)$ and likewise for $\\dot x$, and the interval is
+split into `substeps` equal RK4 steps. Parameters may be constant, shape `(P,)`, or vary per
+sample, shape `(T, P)`; a per-sample parameter is held constant over the interval that starts at
+its sample.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+RHS = Callable[[Array, Array, Array, Array], Array]
+
+#: Target of $|\\lambda| h$ per RK4 sub-step used by :func:`choose_substeps` (dimensionless).
+#: RK4 is stable up to 2.78 for a real eigenvalue; with the conservative stiffness estimates of the
+#: models, 1.5 keeps the force NRMSE below 1e-4 on Spencer's 1997 set at 1 and 5 kHz.
+STEP_TARGET = 1.5
+#: Upper limit of the automatic sub-step count.
+MAX_SUBSTEPS = 256
+
+
+def choose_substeps(rate_hz: float, dt_s: float, *, target: float = STEP_TARGET) -> int:
+    """Number of RK4 sub-steps per sample interval for a given stiffness.
+
+    **Arguments:**
+
+    - `rate_hz`: largest magnitude of the Jacobian eigenvalue of the state equation, $|\\lambda|$
+        [1/s] (see each model's `stiffness`).
+    - `dt_s`: largest sample interval [s].
+    - `target`: wanted $|\\lambda| h$ per sub-step (dimensionless).
+
+    **Returns:** an integer in `[1, MAX_SUBSTEPS]`.
+    """
+    if not (math.isfinite(rate_hz) and math.isfinite(dt_s)) or rate_hz <= 0 or dt_s <= 0:
+        return 1
+    return int(min(MAX_SUBSTEPS, max(1, math.ceil(rate_hz * dt_s / target))))
+
+
+def _per_sample(theta: Array, n: int) -> Array:
+    """Broadcast parameters of shape (P,) or (T, P) to (T, P)."""
+    theta = jnp.asarray(theta)
+    if theta.ndim == 1:
+        return jnp.broadcast_to(theta, (n, theta.shape[0]))
+    return theta
+
+
+def rk4_scan(
+    rhs: RHS,
+    y0: Float[ArrayLike, " S"],
+    theta: Float[ArrayLike, "*T P"],
+    x: Float[ArrayLike, " T"],
+    xdot: Float[ArrayLike, " T"],
+    dt: Float[ArrayLike, "*T"],
+    substeps: int,
+) -> Float[Array, "T S"]:
+    """Integrate `rhs` over a sampled record with fixed-step RK4.
+
+    **Arguments:**
+
+    - `rhs`: right-hand side `rhs(state, x, xdot, theta) -> d state / dt` for one instant.
+    - `y0`: initial state at the first sample, shape `(S,)`.
+    - `theta`: parameters, `(P,)` or per sample `(T, P)`.
+    - `x`: displacement [m], shape `(T,)`.
+    - `xdot`: velocity [m/s], shape `(T,)`.
+    - `dt`: sample interval [s], a scalar or per sample `(T,)` (the interval after each sample;
+        the last entry is unused).
+    - `substeps`: RK4 steps per sample interval (static).
+
+    **Returns:** the state at every sample, shape `(T, S)`, with row 0 equal to `y0`.
+    """
+    x = jnp.asarray(x)
+    xdot = jnp.asarray(xdot)
+    n = x.shape[0]
+    y0 = jnp.asarray(y0, dtype=jnp.result_type(x, y0, float))
+    if n < 2:
+        return y0[None, :]
+    th = _per_sample(theta, n)[:-1]
+    dts = jnp.broadcast_to(jnp.asarray(dt, dtype=x.dtype), (n,))[:-1]
+    xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts, th)
+    m = int(substeps)
+    frac = 1.0 / m
+
+    def interval(y, inp):
+        x0, x1, v0, v1, h_all, p = inp
+        dx, dv = x1 - x0, v1 - v0
+        h = h_all * frac
+
+        def f(y, s):
+            return rhs(y, x0 + s * dx, v0 + s * dv, p)
+
+        def sub(j, y):
+            s0 = j * frac
+            k1 = f(y, s0)
+            k2 = f(y + 0.5 * h * k1, s0 + 0.5 * frac)
+            k3 = f(y + 0.5 * h * k2, s0 + 0.5 * frac)
+            k4 = f(y + h * k3, s0 + frac)
+            return y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+        if m == 1:
+            y = sub(0, y)
+        else:
+            y = jax.lax.fori_loop(0, m, sub, y, unroll=min(m, 4))
+        return y, y
+
+    _, ys = jax.lax.scan(interval, y0, xs)
+    return jnp.concatenate([y0[None, :], ys], axis=0)
+
+
+def max_abs(a: ArrayLike) -> float:
+    """Host-side max |a| ignoring non-finite entries (0 for an empty array)."""
+    a = np.abs(np.asarray(a, dtype=float))
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else 0.0

@@ -1,0 +1,63 @@
+"""Static (memoryless) models: Bingham (eq 1) and the Kwok et al. tanh model (eq 7-8)."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._base import AbstractModel, split_theta
+
+
+class Bingham(AbstractModel):
+    """Bingham plastic model (eq 1): $f = f_c\\,\\mathrm{sign}(\\dot x) + c_0 \\dot x + f_0$.
+
+    Parameters: `fc` [N] Coulomb (yield) force, `c0` [N·s/m] viscous damping, `f0` [N] offset.
+    All three are linear, so the separable swarm solves it exactly.
+    """
+
+    name: ClassVar[str] = "bingham"
+    param_names: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
+    units: ClassVar[tuple[str, ...]] = ("N", "N*s/m", "N")
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, 0.0, -1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (2500.0, 20000.0, 1000.0)
+    linear_params: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
+    description: ClassVar[str] = "Bingham: f = fc*sign(v) + c0*v + f0"
+
+    def design(self, theta, x, xdot, dt):
+        xdot = jnp.asarray(xdot)
+        one = jnp.ones_like(xdot)
+        return jnp.stack([jnp.sign(xdot), xdot, one], axis=-1), jnp.zeros_like(xdot)
+
+
+class Kwok(AbstractModel):
+    """The tanh hysteretic model of Kwok et al. 2006 (eq 7-8).
+
+    $$ f = c\\,\\dot x + k\\,x + \\alpha\\,z + f_0,\\qquad
+       z = \\tanh\\big(\\beta\\,\\dot x + \\delta\\,\\mathrm{sign}(x)\\big). $$
+
+    Parameters: `c` [N·s/m] viscous damping (loop slope at the ends), `k` [N/m] stiffness,
+    `alpha` [N] hysteretic force scale (loop height), `beta` [s/m] hysteretic slope,
+    `delta` [-] loop width, `f0` [N] offset. Linear: c, k, alpha, f0.
+    """
+
+    name: ClassVar[str] = "kwok"
+    param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "beta", "delta", "f0")
+    units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "s/m", "-", "N")
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, 1.0, 0.0, -1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (20000.0, 20000.0, 2500.0, 1000.0, 5.0, 1000.0)
+    linear_params: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0")
+    description: ClassVar[str] = "Kwok tanh: f = c*v + k*x + alpha*tanh(beta*v + delta*sign(x)) + f0"
+
+    @property
+    def _start(self):
+        return np.array([2000.0, 2000.0, 300.0, 100.0, 0.5, 0.0])
+
+    def design(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        beta, delta = split_theta(theta, self.param_names, "beta", "delta")
+        z = jnp.tanh(beta * xdot + delta * jnp.sign(x))
+        one = jnp.ones_like(xdot)
+        return jnp.stack([xdot, x, z, one], axis=-1), jnp.zeros_like(xdot)

@@ -1,0 +1,104 @@
+"""The one fitness of mrjax: masked RMS force error (eq 23), NaN-safe.
+
+Every optimiser in mrjax (swarm, polish, joint generalization, benchmarks) scores parameters
+through :func:`masked_rms` or :func:`residuals`, written for one parameter vector and one
+condition and batched with `jax.vmap` at the call site.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
+
+from ._errors import InputError
+from .data._condition import Batch
+from .models._base import AbstractModel
+
+
+def masked_rms(
+    predicted: Float[ArrayLike, " T"],
+    measured: Float[ArrayLike, " T"],
+    mask: Bool[ArrayLike, " T"],
+) -> Float[Array, ""]:
+    """RMS error [N] over the samples where `mask` is True (eq 23).
+
+    Non-finite predictions give `inf`, never NaN, so a diverging particle can never become a
+    best. An all-False mask also gives `inf`.
+    """
+    predicted = jnp.asarray(predicted)
+    err = jnp.where(mask, predicted - measured, 0.0)
+    n = jnp.sum(mask)
+    rms = jnp.sqrt(jnp.sum(err * err) / jnp.maximum(n, 1))
+    ok = jnp.all(jnp.where(mask, jnp.isfinite(predicted), True)) & (n > 0)
+    return jnp.where(ok & jnp.isfinite(rms), rms, jnp.inf)
+
+
+def residuals(
+    model: AbstractModel,
+    theta: Float[ArrayLike, "*T P"],
+    x: Float[ArrayLike, " T"],
+    xdot: Float[ArrayLike, " T"],
+    dt: Float[ArrayLike, "*T"],
+    force: Float[ArrayLike, " T"],
+    mask: Bool[ArrayLike, " T"],
+) -> Float[Array, " T"]:
+    """Masked residuals `model.force - force` [N], zero where `mask` is False."""
+    pred = model.force(theta, x, xdot, dt)
+    return jnp.where(mask, pred - force, 0.0)
+
+
+def fitness(
+    model: AbstractModel,
+    theta: Float[ArrayLike, "*T P"],
+    x: Float[ArrayLike, " T"],
+    xdot: Float[ArrayLike, " T"],
+    dt: Float[ArrayLike, "*T"],
+    force: Float[ArrayLike, " T"],
+    mask: Bool[ArrayLike, " T"],
+) -> Float[Array, ""]:
+    """RMS force error [N] of `theta` on one condition (one particle, one condition)."""
+    return masked_rms(model.force(theta, x, xdot, dt), force, mask)
+
+
+def fit_mask(batch: Batch, transient: float | str | None = None) -> Bool[Array, "C T"]:
+    """The samples a fit scores: the batch mask, optionally without an initial transient.
+
+    **Arguments:**
+
+    - `batch`: the conditions.
+    - `transient`: `None` (keep all), a time span [s] to drop from the start of each
+        condition, or `"cycle"` to drop the first excitation cycle (needs the frequency).
+    """
+    mask = np.asarray(batch.mask)
+    if transient is None:
+        return batch.mask
+    t = np.asarray(batch.t) - np.asarray(batch.t)[:, :1]
+    if isinstance(transient, str):
+        if transient != "cycle":
+            raise InputError(f"transient must be a time in s, 'cycle' or None, got {transient!r}")
+        freq = np.asarray(batch.frequency)
+        if np.any(~np.isfinite(freq)) or np.any(freq <= 0):
+            raise InputError("transient='cycle' needs the frequency of every condition")
+        span = 1.0 / freq
+    else:
+        span = np.full(batch.n_conditions, float(transient))
+        if not np.all(np.isfinite(span)) or np.any(span < 0):
+            raise InputError(f"transient must be a non-negative time in s, got {transient!r}")
+    keep = mask & (t >= span[:, None])
+    short = np.flatnonzero(keep.sum(axis=1) < 3)
+    if short.size:
+        raise InputError(
+            f"condition {batch.labels[short[0]]!r}: fewer than 3 samples remain after dropping "
+            f"the transient ({transient!r})"
+        )
+    return jnp.asarray(keep)
+
+
+def rms_per_condition(model: AbstractModel, theta: ArrayLike, batch: Batch, mask=None) -> np.ndarray:
+    """Host helper: RMS [N] of parameters `theta` (C, P) on every condition of `batch`."""
+    import jax
+
+    m = batch.mask if mask is None else mask
+    f = jax.vmap(lambda th, x, v, d, F, k: fitness(model, th, x, v, d, F, k))
+    return np.asarray(f(jnp.asarray(theta), batch.x, batch.xdot, batch.dt, batch.force, m))

@@ -1,0 +1,33 @@
+"""Shared test fixtures: float64, CPU, and the optional UTFSM data directory."""
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def utfsm_dir() -> Path | None:
+    """The UTFSM data: $MRJAX_DATA, or ../shared/data/utfsm beside the repository."""
+    env = os.environ.get("MRJAX_DATA")
+    cands = [Path(env)] if env else []
+    cands += [REPO.parent / "shared" / "data" / "utfsm", REPO / ".." / ".." / "shared" / "data" / "utfsm"]
+    for c in cands:
+        if c.is_dir() and any(c.glob("*A.txt")):
+            return c.resolve()
+    return None
+
+
+@pytest.fixture(scope="session")
+def utfsm():
+    d = utfsm_dir()
+    if d is None:
+        pytest.skip("UTFSM data not found (set MRJAX_DATA or place ../shared/data/utfsm)")
+    return d
