@@ -29,9 +29,26 @@ def masked_rms(
     predicted = jnp.asarray(predicted)
     err = jnp.where(mask, predicted - measured, 0.0)
     n = jnp.sum(mask)
+    # a NaN or inf prediction on a scored sample makes the sum NaN or inf: no extra pass needed
     rms = jnp.sqrt(jnp.sum(err * err) / jnp.maximum(n, 1))
-    ok = jnp.all(jnp.where(mask, jnp.isfinite(predicted), True)) & (n > 0)
-    return jnp.where(ok & jnp.isfinite(rms), rms, jnp.inf)
+    return jnp.where(jnp.isfinite(rms) & (n > 0), rms, jnp.inf)
+
+
+def rms_from_gram(
+    w: Float[ArrayLike, " L"],
+    G: Float[ArrayLike, "L L"],
+    g: Float[ArrayLike, " L"],
+    yy: Float[ArrayLike, ""],
+    n: Float[ArrayLike, ""],
+) -> Float[Array, ""]:
+    """RMS [N] of the linear fit `A w` to `y` from Gram quantities, without another pass over
+    the samples: $\mathrm{RSS} = y^\top y - 2 w^\top g + w^\top G w$ with $G = A^\top A$ and
+    $g = A^\top y$ over the `n` scored samples. Valid for any `w` (e.g. after clipping).
+    Non-finite input gives `inf`, like :func:`masked_rms`."""
+    w = jnp.asarray(w)
+    rss = yy - 2.0 * jnp.dot(w, g) + jnp.dot(w, G @ w)
+    rms = jnp.sqrt(jnp.maximum(rss, 0.0) / jnp.maximum(n, 1))
+    return jnp.where(jnp.isfinite(rms) & (n > 0), rms, jnp.inf)
 
 
 def residuals(

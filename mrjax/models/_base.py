@@ -38,7 +38,13 @@ class AbstractModel(eqx.Module):
     - `param_names`: parameter names in vector order.
     - `units`: SI unit of each parameter.
     - `default_lower`, `default_upper`: default bounds for fitting a damper of up to about 2 kN.
-    - `linear_params`: names of the parameters the force is linear in (for fixed others).
+    - `fixed_params`: linear parameters whose regressor does not depend on any parameter
+        (e.g. `c` with regressor $\\dot x$); their columns come from :meth:`basis`.
+    - `varying_params`: linear parameters whose regressor depends on the nonlinear ones
+        (e.g. `alpha` with regressor z); their columns come from :meth:`hysteresis`.
+    - `linear_params`: `fixed_params + varying_params`, all parameters the force is linear in.
+    - `log_params`: nonlinear parameters with a wide positive range, which the separable
+        swarm searches in log space.
     - `dynamic`: whether the model has internal state integrated by the RK4 scan.
 
     Instance field:
@@ -51,8 +57,10 @@ class AbstractModel(eqx.Module):
     units: ClassVar[tuple[str, ...]]
     default_lower: ClassVar[tuple[float, ...]]
     default_upper: ClassVar[tuple[float, ...]]
-    linear_params: ClassVar[tuple[str, ...]]
+    fixed_params: ClassVar[tuple[str, ...]]
+    varying_params: ClassVar[tuple[str, ...]] = ()
     dynamic: ClassVar[bool] = False
+    log_params: ClassVar[tuple[str, ...]] = ()
     description: ClassVar[str] = ""
 
     substeps: int | None = eqx.field(static=True, default=None)
@@ -71,6 +79,11 @@ class AbstractModel(eqx.Module):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Default `(lower, upper)` bounds as float arrays of shape (P,), in SI units."""
         return np.asarray(self.default_lower, float), np.asarray(self.default_upper, float)
+
+    @property
+    def linear_params(self) -> tuple[str, ...]:
+        """Names of the parameters the force is linear in: `fixed_params + varying_params`."""
+        return tuple(self.fixed_params) + tuple(self.varying_params)
 
     @property
     def linear_index(self) -> np.ndarray:
@@ -140,6 +153,22 @@ class AbstractModel(eqx.Module):
 
     # ----------------------------------------------------------------------------- force
     @abc.abstractmethod
+    def basis(self, x: Float[ArrayLike, " T"], xdot: Float[ArrayLike, " T"]) -> Float[Array, "T p"]:
+        """Parameter-free regressors of `fixed_params`, shape (T, p) [N per unit parameter]."""
+
+    def hysteresis(
+        self,
+        theta: Float[ArrayLike, "*T P"],
+        x: Float[ArrayLike, " T"],
+        xdot: Float[ArrayLike, " T"],
+        dt: Float[ArrayLike, "*T"],
+    ) -> tuple[Float[Array, "T k"], Float[Array, " T"]]:
+        """Parameter-dependent part: regressors `Z` (T, k) of `varying_params` and the force
+        `b` (T,) [N] of the nonlinear parameters alone. Entries of `theta` at linear positions
+        are ignored."""
+        xdot = jnp.asarray(xdot)
+        return jnp.zeros(xdot.shape + (0,), xdot.dtype), jnp.zeros_like(xdot)
+
     def design(
         self,
         theta: Float[ArrayLike, "*T P"],
@@ -154,6 +183,8 @@ class AbstractModel(eqx.Module):
         **Returns:** `(A, b)` with `A` of shape (T, L) [N per unit of each linear parameter]
         and `b` of shape (T,) [N], so that `force = A @ theta[linear_index] + b`.
         """
+        Z, b = self.hysteresis(theta, x, xdot, dt)
+        return jnp.concatenate([self.basis(x, xdot), Z], axis=-1), b
 
     def force(
         self,
@@ -176,9 +207,15 @@ class AbstractModel(eqx.Module):
         values; this never raises.
         """
         theta = jnp.asarray(theta)
-        A, b = self.design(theta, x, xdot, dt)
-        lin = theta[..., self.linear_index]
-        return jnp.sum(A * lin, axis=-1) + b
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        Z, f = self.hysteresis(theta, x, xdot, dt)
+        F = self.basis(x, xdot)
+        names = self.param_names
+        for j, n in enumerate(self.fixed_params):
+            f = f + theta[..., names.index(n)] * F[:, j]
+        for j, n in enumerate(self.varying_params):
+            f = f + theta[..., names.index(n)] * Z[:, j]
+        return f
 
 
 def split_theta(theta: Array, names: tuple[str, ...], *wanted: str) -> list[Array]:

@@ -55,7 +55,8 @@ class BoucWen(AbstractModel):
     default_upper: ClassVar[tuple[float, ...]] = (
         20000.0, 20000.0, 2500.0, 1000.0, 5000.0, 5000.0, 5000.0, 3.0,
     )
-    linear_params: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0")
+    fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
+    varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Bouc-Wen: f = c*v + k*x + alpha*z + f0, z' = BW(delta, beta, gamma, n)"
 
@@ -63,11 +64,15 @@ class BoucWen(AbstractModel):
     def _start(self):
         return np.array([2000.0, 2000.0, 300.0, 0.0, 500.0, 250.0, 250.0, 2.0])
 
+    def basis(self, x, xdot):
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        return jnp.stack([xdot, x, jnp.ones_like(xdot)], axis=-1)
+
     def stiffness(self, theta, vmax):
         d, b, g, n = (float(theta[self.param_names.index(k)]) for k in ("delta", "beta", "gamma", "n"))
         return _bw_rate(d, b, g, n, vmax)
 
-    def design(self, theta, x, xdot, dt):
+    def hysteresis(self, theta, x, xdot, dt):
         theta = jnp.asarray(theta)
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         names = self.param_names
@@ -77,9 +82,8 @@ class BoucWen(AbstractModel):
             return _bw_zdot(state, vi, delta, beta, gamma, n)
 
         m = self._substeps_for(theta, xdot, dt)
-        z = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)[:, 0]
-        one = jnp.ones_like(xdot)
-        return jnp.stack([xdot, x, z, one], axis=-1), jnp.zeros_like(xdot)
+        z = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)
+        return z, jnp.zeros_like(xdot)
 
 
 class ModifiedBoucWen(AbstractModel):
@@ -108,7 +112,7 @@ class ModifiedBoucWen(AbstractModel):
     default_upper: ClassVar[tuple[float, ...]] = (
         20000.0, 50000.0, 100000.0, 20000.0, 2500.0, 5000.0, 5000.0, 5000.0, 3.0, 1000.0,
     )
-    linear_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
+    fixed_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Modified Bouc-Wen (Spencer 1997): f = c1*y' + k1*x + f0"
 
@@ -116,14 +120,25 @@ class ModifiedBoucWen(AbstractModel):
     def _start(self):
         return np.array([2000.0, 1000.0, 20000.0, 0.0, 300.0, 500.0, 250.0, 250.0, 2.0, 0.0])
 
+    def basis(self, x, xdot):
+        x = jnp.asarray(x)
+        return jnp.stack([x, jnp.ones_like(x)], axis=-1)
+
     def stiffness(self, theta, vmax):
         idx = self.param_names.index
         d, b, g, n = (float(theta[idx(k)]) for k in ("delta", "beta", "gamma", "n"))
         c0, c1, k0 = float(theta[idx("c0")]), float(theta[idx("c1")]), float(theta[idx("k0")])
-        y_rate = abs(k0) / max(abs(c0 + c1), 1e-12)
-        return max(_bw_rate(d, b, g, n, vmax), y_rate)
+        alpha = float(theta[idx("alpha")])
+        # The (y, z) Jacobian is [[-k0/D, alpha/D], [g k0/D, -g alpha/D - w]] with D = c0 + c1,
+        # g = d zdot / d u in [0, 2|delta|] on the envelope |z|^n <= |delta| / (|beta| + |gamma|)
+        # and |w| <= the Bouc-Wen rate. With w = 0 its eigenvalues are 0 and -(k0 + g alpha)/D,
+        # so |lambda| <= (k0 + g alpha)/D + |w| (the coupling is missed by the BW rate alone).
+        s = abs(b) + abs(g)
+        g_u = 2.0 * abs(d) if 0 < s < np.inf else abs(d)
+        coupling = (abs(k0) + g_u * abs(alpha)) / max(abs(c0 + c1), 1e-12)
+        return _bw_rate(d, b, g, n, vmax) + coupling
 
-    def design(self, theta, x, xdot, dt):
+    def hysteresis(self, theta, x, xdot, dt):
         theta = jnp.asarray(theta)
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         names = self.param_names
@@ -144,8 +159,7 @@ class ModifiedBoucWen(AbstractModel):
         th = jnp.broadcast_to(theta, (x.shape[0], theta.shape[-1])) if theta.ndim == 1 else theta
         yd = ydot_of(states.T, x, xdot, th)
         (c1,) = split_theta(theta, names, "c1")
-        one = jnp.ones_like(xdot)
-        return jnp.stack([x, one], axis=-1), c1 * yd
+        return jnp.zeros(xdot.shape + (0,), xdot.dtype), c1 * yd
 
 
 class Dahl(AbstractModel):
@@ -161,7 +175,8 @@ class Dahl(AbstractModel):
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "1/m", "N")
     default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, 1.0, -1000.0)
     default_upper: ClassVar[tuple[float, ...]] = (20000.0, 20000.0, 2500.0, 10000.0, 1000.0)
-    linear_params: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0")
+    fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
+    varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Dahl: f = c*v + k*x + alpha*w + f0, w' = rho*(v - |v| w)"
 
@@ -169,10 +184,14 @@ class Dahl(AbstractModel):
     def _start(self):
         return np.array([2000.0, 2000.0, 300.0, 1000.0, 0.0])
 
+    def basis(self, x, xdot):
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        return jnp.stack([xdot, x, jnp.ones_like(xdot)], axis=-1)
+
     def stiffness(self, theta, vmax):
         return abs(float(theta[self.param_names.index("rho")])) * vmax
 
-    def design(self, theta, x, xdot, dt):
+    def hysteresis(self, theta, x, xdot, dt):
         theta = jnp.asarray(theta)
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         names = self.param_names
@@ -182,6 +201,5 @@ class Dahl(AbstractModel):
             return rho * (vi - jnp.abs(vi) * state)
 
         m = self._substeps_for(theta, xdot, dt)
-        w = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)[:, 0]
-        one = jnp.ones_like(xdot)
-        return jnp.stack([xdot, x, w, one], axis=-1), jnp.zeros_like(xdot)
+        w = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)
+        return w, jnp.zeros_like(xdot)

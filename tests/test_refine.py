@@ -1,0 +1,255 @@
+"""Tests of `mrjax.refine`: the batched, bounded Levenberg-Marquardt polish and its uncertainty.
+
+Compiled shapes are shared: every tanh test uses the 36-condition paper grid (one compile of the
+polish), the Bouc-Wen tests share one small batch.
+"""
+
+import numpy as np
+import pytest
+
+import mrjax
+from mrjax import data, models, objective
+from mrjax.refine import Polished, Uncertainty, _resolve_model, polish, uncertainty
+
+KWOK = models.get("kwok")
+BINGHAM = models.get("bingham")
+BOUC_WEN = models.get("bouc_wen", substeps=2)
+BW_TRUTH = np.array([1000.0, 3000.0, 500.0, -100.0, 300.0, 200.0, 100.0, 1.0])  # n = 1
+
+
+def _perturbed(truth, seed, lo=0.05, hi=0.10):
+    """Truth times 1 +- U(lo, hi), with random signs (fixed seed)."""
+    rng = np.random.default_rng(seed)
+    size = rng.uniform(lo, hi, truth.shape) * rng.choice([-1.0, 1.0], truth.shape)
+    return truth * (1.0 + size)
+
+
+@pytest.fixture(scope="module")
+def grid():
+    batch = data.paper_grid(noise=20.0)
+    return batch, data.paper_truth(batch)
+
+
+@pytest.fixture(scope="module")
+def grid_fit(grid):
+    batch, truth = grid
+    return polish(KWOK, _perturbed(truth, 0), batch)
+
+
+@pytest.fixture(scope="module")
+def bw_batch():
+    motions = [(1.0, 0.008), (2.0, 0.006), (2.0, 0.008)]
+    return data.paper_grid(BOUC_WEN, BW_TRUTH, currents=(0.0,), motions=motions,
+                           sample_rate=500.0, cycles=1.5, noise=10.0, seed=3)
+
+
+# ------------------------------------------------------------------------------ known answers
+def test_known_answer_noisy_grid(grid, grid_fit):
+    batch, truth = grid
+    res = grid_fit
+    assert isinstance(res, Polished)
+    rms_true = objective.rms_per_condition(KWOK, truth, batch)
+    ratio = np.asarray(res.rms) / rms_true
+    err = np.abs(np.asarray(res.theta) / truth - 1.0)
+    print(f"\nrms/rms_true: max {ratio.max():.5f}, median {np.median(ratio):.5f}; "
+          f"param rel. error median {np.median(err):.4f}, per param {np.median(err, 0).round(4)}")
+    assert np.all(ratio <= 1.001)
+    assert np.median(err) < 0.05
+    assert np.all(np.asarray(res.rms) <= np.asarray(res.rms_start))
+    assert np.all(np.asarray(res.improved))
+    assert set(res.status) <= {"successful", "max_steps_reached"}
+    # the reported rms is the objective's rms of the returned parameters
+    np.testing.assert_allclose(res.rms, objective.rms_per_condition(KWOK, res.theta, batch),
+                               rtol=1e-12)
+    assert "successful" in repr(res) and "1Hz_4mm_0A" in res.summary()
+
+
+def test_noise_free_recovers_truth(grid):
+    batch = data.paper_grid(noise=0.0)  # same shapes as the noisy grid: no recompilation
+    truth = data.paper_truth(batch)
+    res = polish(KWOK, _perturbed(truth, 1), batch)
+    err = np.abs(np.asarray(res.theta) / truth - 1.0)
+    print(f"\nnoise-free: max rel. parameter error {err.max():.2e}, max rms {res.rms.max():.2e} N")
+    assert err.max() < 1e-6
+    assert np.all(np.asarray(res.rms) < 1e-6)
+
+
+def test_confidence_intervals_cover_truth(grid, grid_fit):
+    batch, truth = grid
+    unc = grid_fit.uncertainty
+    ci = np.asarray(unc.ci95)
+    inside = (ci[..., 0] <= truth) & (truth <= ci[..., 1])
+    print(f"\n95 % CI coverage over 36 x 6 parameters: {inside.mean():.3f} "
+          f"(per parameter {inside.mean(axis=0).round(3)})")
+    assert 0.80 <= inside.mean() <= 1.0
+    assert np.all(np.asarray(unc.identifiable))
+    assert np.all(np.isfinite(unc.stderr)) and np.all(np.asarray(unc.stderr) > 0)
+    np.testing.assert_array_equal(np.asarray(unc.dof), np.asarray(batch.n_samples) - 6)
+    corr = np.asarray(unc.corr)
+    np.testing.assert_allclose(np.diagonal(corr, axis1=1, axis2=2), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(corr, np.swapaxes(corr, 1, 2), atol=1e-12)
+    # a wider level gives a wider interval, the same one at 0.95
+    np.testing.assert_allclose(unc.interval(0.95), ci, rtol=1e-12)
+    assert np.all(np.diff(unc.interval(0.99), axis=-1) > np.diff(ci, axis=-1))
+
+
+# ------------------------------------------------------------------------------ never worse
+def test_never_worse_from_optimum(grid, grid_fit):
+    batch, _ = grid
+    res = polish(KWOK, grid_fit.theta, batch)
+    assert np.all(np.asarray(res.rms) <= np.asarray(res.rms_start))
+    np.testing.assert_allclose(res.rms, grid_fit.rms, rtol=1e-10)
+    np.testing.assert_allclose(res.theta, grid_fit.theta, rtol=1e-5, atol=1e-8)
+    for s, kept in zip(res.status, np.asarray(res.kept_start), strict=True):
+        assert (s == "kept_start") == kept
+
+
+def test_mask_restricts_scored_samples(grid, grid_fit):
+    """A fit mask without the first 0.1 s: the rms and the degrees of freedom use only it."""
+    batch, _ = grid
+    mask = objective.fit_mask(batch, transient=0.1)
+    res = polish(KWOK, grid_fit.theta, batch, mask=mask)  # same shapes: no recompilation
+    np.testing.assert_allclose(res.rms, objective.rms_per_condition(KWOK, res.theta, batch, mask),
+                               rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(res.uncertainty.dof),
+                                  np.asarray(mask).sum(axis=1) - 6)
+    assert np.all(np.asarray(res.uncertainty.dof) == np.asarray(batch.n_samples) - 106)
+
+
+# ------------------------------------------------------------------------------ bounds
+def test_results_stay_inside_bounds(grid):
+    batch, truth = grid
+    lo, hi = KWOK.bounds
+    hi = hi.copy()
+    lo = lo.copy()
+    hi[0] = 1500.0  # c: truth is 1232 ... 5090 N s/m
+    lo[4] = 0.9  # delta: truth 0.58 ... 1.18
+    res = polish(KWOK, truth, batch, lower=lo, upper=hi)  # start clipped into the box
+    th = np.asarray(res.theta)
+    assert np.all(th >= lo) and np.all(th <= hi)
+    assert np.all(np.asarray(res.rms) <= np.asarray(res.rms_start))
+    # active bounds are reached exactly (the sine map alone only approaches them)
+    at = np.asarray(res.at_bound)
+    assert np.all(th[truth[:, 0] > 1700.0, 0] == 1500.0) and np.all(at[truth[:, 0] > 1700.0, 0])
+    assert np.all(th[truth[:, 4] < 0.8, 4] == 0.9) and np.all(at[truth[:, 4] < 0.8, 4])
+    assert not np.any(at[:, [1, 2, 3, 5]])
+    print(f"\nactive bounds: statuses {sorted(set(res.status))}, steps max {res.steps.max()}")
+
+
+def test_input_errors(grid):
+    batch, truth = grid
+    with pytest.raises(mrjax.InputError, match="shape"):
+        polish(KWOK, truth[:3], batch)
+    with pytest.raises(mrjax.InputError, match="not finite"):
+        polish(KWOK, np.where(np.arange(6) == 2, np.nan, truth), batch)
+    lo, hi = KWOK.bounds
+    with pytest.raises(mrjax.InputError, match="lower > upper"):
+        polish(KWOK, truth, batch, lower=hi, upper=lo)
+    with pytest.raises(mrjax.InputError, match="unknown"):
+        polish(KWOK, truth, batch, free=["c", "nope"])
+    with pytest.raises(mrjax.InputError, match="no free"):
+        polish(KWOK, truth, batch, lower=truth[0], upper=truth[0])
+
+
+# ------------------------------------------------------------------------------ std-errors
+def _ols(batch, fixed_f0=None):
+    """Closed-form Bingham least squares per condition (numpy): estimates and std-errors."""
+    est, se = [], []
+    for i in range(batch.n_conditions):
+        m = np.asarray(batch.mask[i])
+        v = np.asarray(batch.xdot[i])[m]
+        y = np.asarray(batch.force[i])[m]
+        A = np.stack([np.sign(v), v, np.ones_like(v)], axis=1)
+        if fixed_f0 is not None:
+            A, y = A[:, :2], y - fixed_f0
+        w = np.linalg.solve(A.T @ A, A.T @ y)
+        r = y - A @ w
+        s2 = r @ r / (len(y) - A.shape[1])
+        est.append(w)
+        se.append(np.sqrt(np.diag(s2 * np.linalg.inv(A.T @ A))))
+    return np.array(est), np.array(se)
+
+
+def test_bingham_stderr_matches_ordinary_least_squares():
+    """Bingham is linear in its parameters: J is the OLS design matrix, exactly."""
+    batch = data.paper_grid(BINGHAM, [500.0, 3000.0, -100.0], currents=(0.0,), noise=15.0)
+    est, se = _ols(batch)
+    unc = uncertainty(BINGHAM, est, batch)
+    assert isinstance(unc, Uncertainty)
+    np.testing.assert_allclose(unc.stderr, se, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(unc.dof), batch.n_samples - 3)
+    # f0 known: two free parameters, OLS on the other two, f0 reported with zero error
+    est2, se2 = _ols(batch, fixed_f0=-100.0)
+    theta2 = np.column_stack([est2, np.full(len(est2), -100.0)])
+    unc2 = uncertainty(BINGHAM, theta2, batch, free=["fc", "c0"])
+    np.testing.assert_allclose(np.asarray(unc2.stderr)[:, :2], se2, rtol=1e-6)
+    np.testing.assert_array_equal(np.asarray(unc2.stderr)[:, 2], 0.0)
+    np.testing.assert_array_equal(np.asarray(unc2.dof), batch.n_samples - 2)
+    assert unc2.free == (True, True, False) and "(fixed)" in unc2.summary()
+
+
+# ------------------------------------------------------------------------------ Bouc-Wen
+def test_bouc_wen_scale_redundancy_not_identifiable(bw_batch):
+    """z -> s z, alpha -> alpha/s, delta -> s delta, beta, gamma -> s^(1-n) beta, gamma leaves
+    the force unchanged: with n = 1 (alpha, delta) are exactly redundant, with n free at
+    n != 1 beta and gamma join them."""
+    theta = np.broadcast_to(BW_TRUTH, (bw_batch.n_conditions, 8))
+    unc = uncertainty(BOUC_WEN, theta, bw_batch)
+    names = BOUC_WEN.param_names
+    ident = np.asarray(unc.identifiable)
+    print("\n" + unc.summary(bw_batch.labels))
+    for j, name in enumerate(names):
+        assert np.all(ident[:, j] == (name not in ("alpha", "delta"))), name
+    assert np.all(np.isnan(np.asarray(unc.stderr)[:, [2, 4]]))
+    assert np.all(np.isfinite(np.asarray(unc.stderr)[:, [0, 1, 3, 5, 6, 7]]))
+    # at n = 1.7 (same shapes: no recompilation) the redundancy also moves beta and gamma
+    th2 = theta.copy()
+    th2[:, 7] = 1.7
+    ident2 = np.asarray(uncertainty(BOUC_WEN, th2, bw_batch).identifiable)
+    for j, name in enumerate(names):
+        assert np.all(ident2[:, j] == (name not in ("alpha", "delta", "beta", "gamma"))), name
+
+
+def test_nan_start_does_not_affect_other_conditions(bw_batch):
+    """A start whose RK4 integration overflows (stiff beyond stability) is kept, and the other
+    conditions' results are identical to a run without it. n is held by `free`."""
+    C = bw_batch.n_conditions
+    lo, hi = BOUC_WEN.bounds
+    lo, hi = lo.copy(), hi.copy()
+    hi[4:6] = 1e6  # delta, beta: room for a start that blows up the integrator
+    good = _perturbed(np.broadcast_to(BW_TRUTH, (C, 8)), 5)
+    good[:, 7] = 1.0
+    bad = good.copy()
+    bad[1, 4:7] = 1e5, 1e5, 0.0  # RK4 at |lambda| h ~ 10 overshoots into z' = u (delta + beta|z|)
+    assert not np.isfinite(objective.rms_per_condition(BOUC_WEN, bad, bw_batch)[1])
+    kw = dict(lower=lo, upper=hi, free=[n for n in BOUC_WEN.param_names if n != "n"],
+              max_steps=60)
+    ref = polish(BOUC_WEN, good, bw_batch, **kw)
+    res = polish(BOUC_WEN, bad, bw_batch, **kw)
+    assert res.status[1] == "kept_start" and bool(res.kept_start[1])
+    assert not bool(res.improved[1]) and np.isinf(float(res.rms_start[1]))
+    np.testing.assert_array_equal(np.asarray(res.theta)[1], bad[1])
+    others = np.arange(C) != 1
+    np.testing.assert_allclose(np.asarray(res.theta)[others], np.asarray(ref.theta)[others],
+                               rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(res.rms)[others], np.asarray(ref.rms)[others],
+                               rtol=1e-12)
+    assert res.status[0] == ref.status[0] and res.status[2] == ref.status[2]
+    # the good runs fit to the noise level, keep n fixed and flag the (alpha, delta) scale
+    rms_true = objective.rms_per_condition(BOUC_WEN, np.broadcast_to(BW_TRUTH, (C, 8)),
+                                           bw_batch)
+    assert np.all(np.asarray(ref.rms) <= 1.001 * rms_true)
+    np.testing.assert_array_equal(np.asarray(ref.theta)[:, 7], 1.0)
+    ident = np.asarray(ref.identifiable)
+    assert np.all(~ident[:, 2] & ~ident[:, 4])
+
+
+def test_substeps_resolved_on_host(bw_batch):
+    auto = models.get("bouc_wen")
+    lo, hi = auto.bounds
+    rows = np.vstack([lo, hi, BW_TRUTH])
+    resolved = _resolve_model(auto, rows, bw_batch)
+    expected = auto.resolve_substeps(rows, np.asarray(bw_batch.xdot), np.asarray(bw_batch.dt))
+    assert resolved.substeps == expected >= 1
+    assert _resolve_model(BOUC_WEN, rows, bw_batch) is BOUC_WEN
+    assert _resolve_model(KWOK, rows, bw_batch) is KWOK
