@@ -18,4 +18,8 @@ if _os.environ.get("MRJAX_X64", "1") != "0":
 
 from . import data as data
 from . import models as models
+from . import pso as pso
+from . import refine as refine
+from .fit import FitResult as FitResult
+from .fit import fit as fit
 from ._errors import InputError as InputError

@@ -47,6 +47,7 @@ from ._errors import InputError
 from .data._condition import Batch
 from .models._base import AbstractModel
 from .objective import fitness, residuals
+from .pso import resolve_model
 
 #: Relative eigenvalue cutoff of the column-scaled $J^T J$ (unit diagonal) below which a
 #: direction counts as numerically null (condition number of the scaled Jacobian > 1e5).
@@ -244,16 +245,6 @@ def _require_x64():
         raise RuntimeError(
             "mrjax.refine needs float64: enable jax_enable_x64 (do not set MRJAX_X64=0)"
         )
-
-
-def _resolve_model(model: AbstractModel, rows: np.ndarray, batch: Batch) -> AbstractModel:
-    """Fix the RK4 sub-step count of an ODE model on the host, from the stiffest of `rows`
-    (bounds and starts), so that the compiled solve never uses the traced fallback."""
-    if model.dynamic and model.substeps is None:
-        n = model.resolve_substeps(np.asarray(rows, float), np.asarray(batch.xdot),
-                                   np.asarray(batch.dt))
-        return model.with_substeps(n)
-    return model
 
 
 def _as_theta(model: AbstractModel, theta: ArrayLike, C: int, what: str) -> np.ndarray:
@@ -512,7 +503,7 @@ def uncertainty(
     theta = _as_theta(model, theta, C, "theta")
     m = _as_mask(batch, mask)
     fr = _as_free(model, free)
-    model = _resolve_model(model, theta, batch)
+    model = resolve_model(model, theta, batch)
     free_idx = tuple(int(i) for i in np.flatnonzero(fr))
     if not free_idx:
         raise InputError("no free parameters")
@@ -582,7 +573,7 @@ def polish(
         raise InputError(
             "no free parameters: every parameter is fixed (free mask or lower == upper)"
         )
-    model = _resolve_model(model, np.vstack([lo, hi, theta0]), batch)
+    model = resolve_model(model, theta0, batch)
     (theta, rms, rms0, steps, code, kept), unc = _polish_core(
         model, free_idx, int(max_steps), jnp.asarray(rtol, float), jnp.asarray(atol, float),
         jnp.asarray(theta0), jnp.asarray(lo), jnp.asarray(hi), batch.x, batch.xdot, batch.dt,

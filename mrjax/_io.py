@@ -1,0 +1,72 @@
+"""Atomic output: a set of files appears in a directory completely, or not at all."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from ._errors import InputError
+
+
+def check_writable(out_dir: str | os.PathLike) -> Path:
+    """Fail early, before any work, if `out_dir` cannot be created or written.
+
+    Raises :class:`mrjax.InputError` naming the directory.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output path {str(out)!r} exists and is not a directory")
+    parent = out if out.exists() else _existing_parent(out)
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"output directory {str(out)!r} is not writable ({str(parent)!r})")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".mrjax-probe-", dir=parent)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise InputError(f"output directory {str(out)!r} is not writable: {e.strerror}") from None
+    return out
+
+
+def _existing_parent(p: Path) -> Path:
+    p = p.absolute()
+    while not p.exists():
+        p = p.parent
+    return p
+
+
+def atomic_output(out_dir: str | os.PathLike, files: dict[str, bytes]) -> Path:
+    """Write `files` (name -> bytes) into `out_dir` so that no partial set is ever visible.
+
+    All files are first written into a temporary directory beside `out_dir` (same file
+    system). A new `out_dir` is then created by one atomic rename; into an existing one each
+    file is moved with an atomic `os.replace`, so a reader never sees a half-written file and
+    a failure before the move leaves the directory exactly as it was.
+    """
+    out = check_writable(out_dir)
+    parent = out.parent if not out.exists() else out
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".mrjax-tmp-", dir=parent))
+    try:
+        for name, data in files.items():
+            target = tmp / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with open(target, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        if not out.exists():
+            os.replace(tmp, out)
+            return out
+        for name in files:
+            dest = out / name
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp / name, dest)
+        return out
+    except OSError as e:
+        raise InputError(f"could not write output directory {str(out)!r}: {e.strerror}") from None
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
