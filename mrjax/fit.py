@@ -31,7 +31,7 @@ from ._errors import InputError
 from .data._condition import Batch, Condition, make_batch
 from .models import AbstractModel, get
 from .objective import fit_mask, rms_per_condition
-from .pso import PSOParams, check_bounds, fit_swarm, resolve_model
+from .pso import PSOParams, check_bounds, default_params, fit_swarm, resolve_model
 
 Method = Literal["pso", "pso+lm", "lm"]
 SwarmMode = Literal["separable", "full"]
@@ -318,7 +318,7 @@ def fit(
     if generations is not None:
         if int(generations) < 1:
             raise InputError(f"generations must be at least 1, got {generations}")
-        base = pso_params or (PSOParams(window=15) if swarm == "separable" else PSOParams())
+        base = pso_params or default_params(swarm)
         pso_params = PSOParams(
             inertia=base.inertia, c1_max=base.c1_max, c2_max=base.c2_max,
             confidence=base.confidence, window=base.window,

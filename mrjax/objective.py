@@ -41,7 +41,7 @@ def rms_from_gram(
     yy: Float[ArrayLike, ""],
     n: Float[ArrayLike, ""],
 ) -> Float[Array, ""]:
-    """RMS [N] of the linear fit `A w` to `y` from Gram quantities, without another pass over
+    r"""RMS [N] of the linear fit `A w` to `y` from Gram quantities, without another pass over
     the samples: $\mathrm{RSS} = y^\top y - 2 w^\top g + w^\top G w$ with $G = A^\top A$ and
     $g = A^\top y$ over the `n` scored samples. Valid for any `w` (e.g. after clipping).
     Non-finite input gives `inf`, like :func:`masked_rms`."""

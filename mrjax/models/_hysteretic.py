@@ -51,9 +51,9 @@ class BoucWen(AbstractModel):
     name: ClassVar[str] = "bouc_wen"
     param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "f0", "delta", "beta", "gamma", "n")
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "N", "1/m", "1/m", "1/m", "-")
-    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, -1000.0, 1.0, 0.0, 0.0, 1.0)
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -100000.0, 0.0, -1000.0, 1.0, 0.0, 0.0, 1.0)
     default_upper: ClassVar[tuple[float, ...]] = (
-        20000.0, 20000.0, 2500.0, 1000.0, 5000.0, 5000.0, 5000.0, 3.0,
+        100000.0, 100000.0, 2500.0, 1000.0, 5000.0, 5000.0, 5000.0, 3.0,
     )
     fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
@@ -107,10 +107,10 @@ class ModifiedBoucWen(AbstractModel):
         "N*s/m", "N/m", "N*s/m", "N/m", "N", "1/m", "1/m", "1/m", "-", "N",
     )
     default_lower: ClassVar[tuple[float, ...]] = (
-        0.0, 0.0, 2000.0, -20000.0, 0.0, 1.0, 0.0, 0.0, 1.0, -1000.0,
+        0.0, 0.0, 2000.0, -100000.0, 0.0, 1.0, 0.0, 0.0, 1.0, -1000.0,
     )
     default_upper: ClassVar[tuple[float, ...]] = (
-        20000.0, 50000.0, 200000.0, 20000.0, 2500.0, 5000.0, 5000.0, 5000.0, 3.0, 1000.0,
+        100000.0, 100000.0, 200000.0, 100000.0, 2500.0, 5000.0, 5000.0, 5000.0, 3.0, 1000.0,
     )
     fixed_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
     dynamic: ClassVar[bool] = True
@@ -173,8 +173,8 @@ class Dahl(AbstractModel):
     name: ClassVar[str] = "dahl"
     param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "rho", "f0")
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "1/m", "N")
-    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, 1.0, -1000.0)
-    default_upper: ClassVar[tuple[float, ...]] = (20000.0, 20000.0, 2500.0, 10000.0, 1000.0)
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -100000.0, 0.0, 1.0, -1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (100000.0, 100000.0, 2500.0, 10000.0, 1000.0)
     fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True

@@ -21,7 +21,7 @@ class Bingham(AbstractModel):
     param_names: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
     units: ClassVar[tuple[str, ...]] = ("N", "N*s/m", "N")
     default_lower: ClassVar[tuple[float, ...]] = (0.0, 0.0, -1000.0)
-    default_upper: ClassVar[tuple[float, ...]] = (2500.0, 20000.0, 1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (2500.0, 100000.0, 1000.0)
     fixed_params: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
     description: ClassVar[str] = "Bingham: f = fc*sign(v) + c0*v + f0"
 
@@ -44,8 +44,8 @@ class Kwok(AbstractModel):
     name: ClassVar[str] = "kwok"
     param_names: ClassVar[tuple[str, ...]] = ("c", "k", "alpha", "beta", "delta", "f0")
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "s/m", "-", "N")
-    default_lower: ClassVar[tuple[float, ...]] = (0.0, -20000.0, 0.0, 1.0, 0.0, -1000.0)
-    default_upper: ClassVar[tuple[float, ...]] = (20000.0, 20000.0, 2500.0, 1000.0, 5.0, 1000.0)
+    default_lower: ClassVar[tuple[float, ...]] = (0.0, -100000.0, 0.0, 1.0, 0.0, -1000.0)
+    default_upper: ClassVar[tuple[float, ...]] = (100000.0, 100000.0, 2500.0, 10000.0, 5.0, 1000.0)
     fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     log_params: ClassVar[tuple[str, ...]] = ("beta",)

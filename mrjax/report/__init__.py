@@ -1,0 +1,21 @@
+"""Figures and tables of data and fit results.
+
+Figures are `matplotlib.figure.Figure` objects made without `pyplot` (no display needed);
+`save_png_bytes(fig)` renders one to PNG bytes.
+
+```python
+import mrjax, mrjax.report as rp
+res = mrjax.fit("kwok", batch)
+png = rp.save_png_bytes(rp.plot_loops_grid(res, batch))
+```
+"""
+
+from ._figures import plot_convergence as plot_convergence
+from ._figures import plot_data_loops as plot_data_loops
+from ._figures import plot_generations_vs_current as plot_generations_vs_current
+from ._figures import plot_loops_grid as plot_loops_grid
+from ._figures import plot_params_vs_current as plot_params_vs_current
+from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
+from ._figures import plot_rms_vs_current as plot_rms_vs_current
+from ._figures import save_png_bytes as save_png_bytes
+from ._tables import format_table as format_table
