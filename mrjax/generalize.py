@@ -101,7 +101,14 @@ from .data._condition import Batch
 from .fit import FitResult, as_batch
 from .models import AbstractModel, get
 from .objective import masked_rms, residuals, rms_from_gram
-from .pso import SWARM_MAX_SUBSTEPS, AbstractObjective, PSOParams, resolve_model, swarm
+from .pso import (
+    SWARM_MAX_SUBSTEPS,
+    AbstractObjective,
+    PSOParams,
+    default_params,
+    resolve_model,
+    swarm,
+)
 
 LawKind = Literal["poly", "exp"]
 GeneralizeMethod = Literal["two-step", "joint"]
@@ -1041,7 +1048,7 @@ def generalize(
     if search_idx:
         if key is None:
             key = jax.random.key(int(seed))
-        params = pso_params or PSOParams(window=15)
+        params = pso_params or default_params("separable")
         sw = swarm(obj, s_lo, s_hi, data1, key=key, params=params, n_particles=n_particles,
                    max_generations=max_generations)
         pos = sw.position[0]

@@ -97,9 +97,16 @@ class AbstractModel(eqx.Module):
         return np.array([i for i, n in enumerate(self.param_names) if n not in lin], dtype=int)
 
     def default_start(self) -> np.ndarray:
-        """A start vector inside the default bounds (used by `method="lm"`), shape (P,)."""
+        """The neutral start used by `method="lm"`: the centre of the default box (the
+        geometric centre for `log_params`), shape (P,). It knows nothing about the data, which
+        is the point: it shows what a local fit does without the swarm."""
         lo, hi = self.bounds
-        return np.asarray(getattr(self, "_start", 0.5 * (lo + hi)), float)
+        mid = 0.5 * (lo + hi)
+        for n in self.log_params:
+            i = self.param_names.index(n)
+            if lo[i] > 0:
+                mid[i] = np.sqrt(lo[i] * hi[i])
+        return mid
 
     def params(self, **values: float) -> np.ndarray:
         """Build a parameter vector from keyword values, e.g. `model.params(c=1232., ...)`.

@@ -17,15 +17,23 @@ from typing import ClassVar
 import jax.numpy as jnp
 import numpy as np
 
-from ._base import AbstractModel, safe_abs_pow, split_theta
+from ._base import AbstractModel, split_theta
 from ._integrate import rk4_scan
 
 
 def _bw_zdot(z, u, delta, beta, gamma, n):
     """Bouc-Wen evolution $\\dot z$ for relative velocity `u`, written NaN-safely as
     $\\delta u - |z|^n (\\beta u + \\gamma |u| \\mathrm{sign}(z))$, which equals
-    $\\delta u - \\beta u |z|^n - \\gamma z |u| |z|^{n-1}$."""
-    return delta * u - safe_abs_pow(z, n) * (beta * u + gamma * jnp.abs(u) * jnp.sign(z))
+    $\\delta u - \\beta u |z|^n - \\gamma z |u| |z|^{n-1}$.
+
+    Speed (this runs C x N x 4 x substeps times per sample): $|z|^n$ is `exp(n log|z|)`, which
+    XLA:CPU vectorises, where `pow` is a scalar libm call (measured 4x slower in float64, >5x in
+    float32); `sign(z)` becomes a select, exact here because $|z|^n = 0$ at z = 0. Values and
+    gradients are those of `safe_abs_pow` (finite at z = 0)."""
+    a = jnp.abs(z)
+    nz = a > 0
+    p = jnp.where(nz, jnp.exp(n * jnp.log(jnp.where(nz, a, 1.0))), 0.0)
+    return delta * u - beta * u * p - gamma * jnp.abs(u) * jnp.where(z >= 0, p, -p)
 
 
 def _bw_rate(delta, beta, gamma, n, vmax):
@@ -60,9 +68,6 @@ class BoucWen(AbstractModel):
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Bouc-Wen: f = c*v + k*x + alpha*z + f0, z' = BW(delta, beta, gamma, n)"
 
-    @property
-    def _start(self):
-        return np.array([2000.0, 2000.0, 300.0, 0.0, 500.0, 250.0, 250.0, 2.0])
 
     def basis(self, x, xdot):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
@@ -116,9 +121,6 @@ class ModifiedBoucWen(AbstractModel):
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Modified Bouc-Wen (Spencer 1997): f = c1*y' + k1*x + f0"
 
-    @property
-    def _start(self):
-        return np.array([2000.0, 1000.0, 20000.0, 0.0, 300.0, 500.0, 250.0, 250.0, 2.0, 0.0])
 
     def basis(self, x, xdot):
         x = jnp.asarray(x)
@@ -180,9 +182,6 @@ class Dahl(AbstractModel):
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Dahl: f = c*v + k*x + alpha*w + f0, w' = rho*(v - |v| w)"
 
-    @property
-    def _start(self):
-        return np.array([2000.0, 2000.0, 300.0, 1000.0, 0.0])
 
     def basis(self, x, xdot):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)

@@ -85,14 +85,18 @@ def rk4_scan(
     y0 = jnp.asarray(y0, dtype=jnp.result_type(x, y0, float))
     if n < 2:
         return y0[None, :]
-    th = _per_sample(theta, n)[:-1]
+    theta = jnp.asarray(theta)
+    # Constant parameters are closed over, not broadcast to (T, P) scan inputs: under vmap over
+    # C x N particles that broadcast was a (T, C, N, P) buffer, rebuilt every call.
+    per_sample = theta.ndim > 1
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=x.dtype), (n,))[:-1]
-    xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts, th)
+    xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts) + ((theta[:-1],) if per_sample else ())
     m = int(substeps)
     frac = 1.0 / m
 
     def interval(y, inp):
-        x0, x1, v0, v1, h_all, p = inp
+        x0, x1, v0, v1, h_all = inp[:5]
+        p = inp[5] if per_sample else theta
         dx, dv = x1 - x0, v1 - v0
         h = h_all * frac
 

@@ -51,9 +51,6 @@ class Kwok(AbstractModel):
     log_params: ClassVar[tuple[str, ...]] = ("beta",)
     description: ClassVar[str] = "Kwok tanh: f = c*v + k*x + alpha*tanh(beta*v + delta*sign(x)) + f0"
 
-    @property
-    def _start(self):
-        return np.array([2000.0, 2000.0, 300.0, 100.0, 0.5, 0.0])
 
     def basis(self, x, xdot):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
