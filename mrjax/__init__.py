@@ -7,11 +7,11 @@ Levenberg-Marquardt polish through optimistix; and current-dependent (generalize
 
 __version__ = "0.1.0"
 
-import jax as _jax
-
 # Fitting needs float64 (the polish, the std-errors, long RMS sums); the swarm may still run in
 # float32 where asked. Set MRJAX_X64=0 to leave JAX's default alone.
 import os as _os
+
+import jax as _jax
 
 if _os.environ.get("MRJAX_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
@@ -20,6 +20,6 @@ from . import data as data
 from . import models as models
 from . import pso as pso
 from . import refine as refine
+from ._errors import InputError as InputError
 from .fit import FitResult as FitResult
 from .fit import fit as fit
-from ._errors import InputError as InputError

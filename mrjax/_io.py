@@ -19,6 +19,9 @@ def check_writable(out_dir: str | os.PathLike) -> Path:
     if out.exists() and not out.is_dir():
         raise InputError(f"output path {str(out)!r} exists and is not a directory")
     parent = out if out.exists() else _existing_parent(out)
+    if not parent.is_dir():
+        raise InputError(f"output directory {str(out)!r} cannot be created: {str(parent)!r} is "
+                         f"not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"output directory {str(out)!r} is not writable ({str(parent)!r})")
     try:

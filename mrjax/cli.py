@@ -21,6 +21,7 @@ import importlib.util
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -82,6 +83,44 @@ def _transient(text: str) -> float | str:
     if not (math.isfinite(v) and v >= 0):
         raise argparse.ArgumentTypeError(f"expected non-negative seconds, got {text!r}")
     return v
+
+
+def _bounds(items: list[str] | None, model) -> tuple[dict, dict] | None:
+    """`--bounds NAME=LO:HI` options (an empty LO or HI keeps the default) as checked
+    `(lower, upper)` dicts for `mrjax.fit`, or None."""
+    if not items:
+        return None
+    from .pso import check_bounds
+
+    lower: dict[str, float] = {}
+    upper: dict[str, float] = {}
+    seen: set[str] = set()
+    for item in items:
+        name, eq, rng = item.partition("=")
+        lo, colon, hi = rng.partition(":")
+        name = name.strip()
+        if not (eq and colon and name):
+            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. c=500:5000")
+        if name in seen:
+            raise InputError(f"--bounds: parameter {name!r} given twice")
+        seen.add(name)
+        for side, text, d in (("LO", lo, lower), ("HI", hi, upper)):
+            if text.strip():
+                try:
+                    d[name] = float(text)
+                except ValueError:
+                    raise InputError(f"--bounds {item!r}: {side} is not a number: "
+                                     f"{text.strip()!r}") from None
+    try:
+        check_bounds(model, (lower, upper))
+    except InputError as e:
+        raise InputError(f"--bounds: {e}") from None
+    return lower, upper
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one line `mrjax: warning: ...` on stderr."""
+    print(f"mrjax: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
 
 
 def _json_safe(obj: Any) -> Any:
@@ -175,6 +214,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
+    bounds = _bounds(args.bounds, model)
     gen_mod = _import_generalize() if args.generalize else None
 
     batch = _load_batch(args.files)
@@ -185,7 +225,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         model, batch, method=args.method, swarm=args.swarm, seed=args.seed,
         n_particles=args.particles,
         max_generations=args.max_generations if args.max_generations is not None else 200,
-        generations=args.generations, transient=args.transient, progress=None,
+        generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
     )
 
     gm = None
@@ -420,6 +460,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="swarm size (default 50)")
     p.add_argument("--transient", type=_transient, metavar="SECONDS|cycle",
                    help="leave an initial span out of the fitness: seconds or 'cycle'")
+    p.add_argument("--bounds", action="append", metavar="NAME=LO:HI",
+                   help="search bounds of one parameter in SI units, e.g. c=500:5000 (repeatable; "
+                   "an empty LO or HI keeps the default; see `mrjax models`)")
     p.add_argument("--generalize", choices=("two-step", "joint"),
                    help="also fit current-dependent laws of the parameters")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
@@ -445,8 +488,8 @@ def _parser() -> argparse.ArgumentParser:
                        description="Reproduce the study of Kwok et al. (2006).")
     p.add_argument("--quick", action="store_true", help="a small, fast version")
     p.add_argument("--data", metavar="DIR", help="measured data directory (default: embedded)")
-    p.add_argument("--out", default="mrjax-reproduce", metavar="DIR",
-                   help="output directory (default ./mrjax-reproduce)")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default 0)")
     p.set_defaults(func=_cmd_reproduce)
 
@@ -472,7 +515,9 @@ def main(argv: list[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     debug = bool(getattr(args, "debug", False))
     try:
-        return int(args.func(args))
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return int(args.func(args))
     except BrokenPipeError:  # e.g. `mrjax models | head`: stop quietly, like other tools
         try:
             import os

@@ -17,6 +17,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -253,6 +254,33 @@ def _progress_callback(enabled: bool | None, max_generations: int, C: int):
     return cb, bar
 
 
+def _check_records(model: AbstractModel, batch: Batch, mask) -> None:
+    """Error for fewer scored samples than parameters + 1; warning for a record shorter than
+    one excitation period."""
+    n = np.asarray(mask).sum(axis=1)
+    short = np.flatnonzero(n <= model.n_params)
+    if short.size:
+        i = int(short[0])
+        raise InputError(
+            f"condition {batch.labels[i]!r}: {int(n[i])} scored samples are too few for model "
+            f"{model.name!r} with {model.n_params} parameters (at least {model.n_params + 1} "
+            f"needed)")
+    m = np.asarray(mask)
+    rows = np.arange(m.shape[0])
+    first, last = np.argmax(m, axis=1), m.shape[1] - 1 - np.argmax(m[:, ::-1], axis=1)
+    t, dt = np.asarray(batch.t), np.asarray(batch.dt)
+    span = t[rows, last] - t[rows, first] + dt[rows, last]  # scored duration, last interval in
+    freq = np.asarray(batch.frequency, float)
+    with np.errstate(invalid="ignore"):
+        partial = np.flatnonzero(np.isfinite(freq) & (freq > 0) & (span * freq < 0.99))
+    if partial.size:
+        i = int(partial[0])
+        warnings.warn(
+            f"condition {batch.labels[i]!r}: the scored record spans {span[i]:.3g} s, less than "
+            f"one period of its {freq[i]:g} Hz excitation ({partial.size} such condition(s)); "
+            f"its parameters are poorly determined", RuntimeWarning, stacklevel=3)
+
+
 def fit(
     model: str | AbstractModel,
     data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
@@ -281,7 +309,7 @@ def fit(
     - `data`: a `mrjax.data.Batch`, condition(s), or file/directory path(s).
     - `method`: `"pso+lm"` (swarm, then the Levenberg-Marquardt polish; default), `"pso"`
         (swarm only), or `"lm"` (polish alone from the model's default start: it shows why the
-        swarm is needed).
+        swarm is needed). Where `bounds` exclude the default start, it is clipped onto them.
     - `swarm`: `"separable"` (variable projection; default) or `"full"` (the paper's swarm).
     - `key`: JAX PRNG key; default `jax.random.key(seed)`. Same key, same result.
     - `seed`: integer seed used when `key` is None, and recorded in the result.
@@ -295,10 +323,16 @@ def fit(
     - `uncertainty`: compute std-errors and intervals (needs the polish machinery; also for
         `method="pso"`).
     - `progress`: show a progress bar (None: only on a TTY).
-    - `devices`: shard the condition axis over these devices (default: one device).
+    - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
+        `jax.Device` (default: one device); see `mrjax.parallel`. Same key, same result.
     - `callback`: host callback for the swarm, see `mrjax.pso.swarm`.
 
     **Returns:** a :class:`FitResult`.
+
+    Raises :class:`mrjax.InputError` for bad options or data, including a condition with no
+    more scored samples than the model has parameters. Warns (`RuntimeWarning`) for a condition
+    whose record is shorter than one excitation period (known frequency): it has no complete
+    hysteresis loop, so its parameters are poorly determined.
     """
     from .refine import polish as lm_polish
     from .refine import uncertainty as lm_uncertainty
@@ -313,6 +347,7 @@ def fit(
     batch = as_batch(data)
     lo, hi = check_bounds(model, bounds)
     mask = fit_mask(batch, transient)
+    _check_records(model, batch, mask)
     if key is None:
         key = jax.random.key(int(seed))
     if generations is not None:
@@ -325,9 +360,10 @@ def fit(
             min_generations=base.min_generations, criterion=False,
             velocity_clamp=base.velocity_clamp)
         max_generations = int(generations)
+    n_real = batch.n_conditions
     if devices is not None:
         from .parallel import shard_batch
-        batch, mask = shard_batch(batch, mask, devices)
+        batch, mask = shard_batch(batch, mask, devices)  # may pad C to a multiple of devices
     timings["prepare"] = time.perf_counter() - t0
 
     C = batch.n_conditions
@@ -398,7 +434,7 @@ def fit(
         ident = np.ones((C, P), bool)
     timings["evaluate"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
-    return FitResult(
+    result = FitResult(
         model=model, method=method, swarm=swarm if method != "lm" else "none", seed=int(seed),
         labels=tuple(batch.labels), current=np.asarray(batch.current, float),
         frequency=np.asarray(batch.frequency, float), amplitude=np.asarray(batch.amplitude, float),
@@ -407,6 +443,10 @@ def fit(
         polish_steps=steps, polish_status=status, stderr=stderr, ci95=ci95, corr=corr,
         identifiable=ident, timings=timings,
     )
+    if result.n_conditions != n_real:  # drop the padding added by shard_batch
+        from .parallel import unpad
+        result = unpad(result, n_real)
+    return result
 
 
 def save(result: FitResult, out_dir: str | os.PathLike, *, extra_files: dict[str, bytes] | None = None) -> Path:

@@ -7,6 +7,8 @@ condition and batched with `jax.vmap` at the call site.
 
 from __future__ import annotations
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
@@ -114,8 +116,14 @@ def fit_mask(batch: Batch, transient: float | str | None = None) -> Bool[Array, 
 
 def rms_per_condition(model: AbstractModel, theta: ArrayLike, batch: Batch, mask=None) -> np.ndarray:
     """Host helper: RMS [N] of parameters `theta` (C, P) on every condition of `batch`."""
-    import jax
-
     m = batch.mask if mask is None else mask
-    f = jax.vmap(lambda th, x, v, d, F, k: fitness(model, th, x, v, d, F, k))
-    return np.asarray(f(jnp.asarray(theta), batch.x, batch.xdot, batch.dt, batch.force, m))
+    return np.asarray(_rms_batch(model, jnp.asarray(theta), batch.x, batch.xdot, batch.dt,
+                                 batch.force, jnp.asarray(m)))
+
+
+@eqx.filter_jit
+def _rms_batch(model, theta, x, xdot, dt, force, mask):
+    # compiled once per model and shape: run eagerly, an ODE model's `lax.scan` was compiled
+    # afresh on every call (its step function is a new closure each time)
+    f = jax.vmap(lambda th, a, v, d, F, k: fitness(model, th, a, v, d, F, k))
+    return f(theta, x, xdot, dt, force, mask)

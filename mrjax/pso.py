@@ -237,8 +237,11 @@ def solve_linear(
     b = jnp.where(mask, b, 0.0)
     ZH = Z @ H  # (k, p+1)
     bH = b @ H  # (p+1,)
-    ZZ = Z @ Z.T
-    Zb = Z @ b
+    # Z'Z and Z'b as elementwise products summed over the samples rather than (k x T) @ (T x k)
+    # and (k x T) @ (T,) dots: XLA:CPU then reads the one masked Z buffer the Z'H product uses,
+    # instead of materialising another masked copy in a transposed layout (k = 1 here).
+    ZZ = jnp.sum(Z[:, None, :] * Z[None, :, :], axis=-1)
+    Zb = jnp.sum(Z * b[None, :], axis=-1)
     # Gram quantities of A = [F, Z] against y = force - b
     Fy = HH[:p, p] - bH[:p]
     yy = HH[p, p] - 2.0 * bH[p] + b @ b
@@ -534,6 +537,9 @@ def swarm(
     if n_particles < 1 or max_generations < 1:
         raise InputError("n_particles and max_generations must be at least 1")
     keys = _keys_for(key, C)
+    if keys.shape[0] != C:
+        raise InputError(f"key: got {keys.shape[0]} keys for {C} conditions; pass one key or "
+                         f"one per condition")
     if dtype is not None:
         dtype = jnp.dtype(dtype)
         if not jnp.issubdtype(dtype, jnp.floating):
@@ -584,6 +590,11 @@ def check_bounds(model: AbstractModel, bounds) -> tuple[np.ndarray, np.ndarray]:
     except (TypeError, ValueError):
         raise InputError("bounds must be a pair (lower, upper)") from None
     if isinstance(lo, dict) or isinstance(hi, dict):
+        for d in (lo, hi):
+            unknown = [k for k in d if k not in model.param_names] if isinstance(d, dict) else []
+            if unknown:
+                raise InputError(f"bounds name unknown parameter {unknown[0]!r} of model "
+                                 f"{model.name!r}; its parameters: {', '.join(model.param_names)}")
         d_lo, d_hi = model.bounds
         lo = np.array([lo.get(n, d_lo[i]) if isinstance(lo, dict) else lo[i]
                        for i, n in enumerate(model.param_names)], float)

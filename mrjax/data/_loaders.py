@@ -440,7 +440,7 @@ def _mat_vector(data: Mapping, name: str, role: str, src: str) -> np.ndarray:
     a = np.asarray(data[name])
     if a.dtype.kind not in "fiub":
         raise InputError(f"{src}: variable {name!r} ({role}) is not numeric (type {a.dtype})")
-    if a.ndim == 2 and 1 in a.shape:
+    if a.ndim == 2 and (1 in a.shape or a.size == 0):
         a = a.ravel()
     if a.ndim != 1:
         raise InputError(f"{src}: variable {name!r} ({role}) must be a vector, got shape {a.shape}")
@@ -532,9 +532,11 @@ def load_mat(
             mats = [k for k in present if np.asarray(data[k]).ndim == 2
                     and min(np.asarray(data[k]).shape) > 1]
             if len(mats) != 1:
+                missing = ", ".join(r for r in ("t", "x", "force") if r not in data)
                 raise InputError(
-                    f"{src}: say where the data are with variables= or matrix=; "
-                    f"variables present: {listing}"
+                    f"{src}: missing variable(s) {missing} (the conventional names are t, x, "
+                    f"force) and no single data matrix; say where the data are with variables= "
+                    f"or matrix=; variables present: {listing}"
                 )
             matrix = mats[0]
     variables = dict(variables or {})

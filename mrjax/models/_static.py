@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import ClassVar
 
 import jax.numpy as jnp
-import numpy as np
 
 from ._base import AbstractModel, split_theta
 
