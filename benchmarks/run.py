@@ -613,10 +613,11 @@ def write_csv(batch, path) -> None:
     with open(path, "w") as f:
         f.write(",".join(cols) + "\n")
         for c in batch.conditions():
+            meta = f"{c.label},{float(c.current)!r},{float(c.frequency)!r},{float(c.amplitude)!r}"
             for j in range(c.n_samples):
                 f.write(
-                    f"{c.label},{c.current!r},{c.frequency!r},{c.amplitude!r},{c.t[j]!r},"
-                    f"{c.x[j]!r},{c.xdot[j]!r},{c.force[j]!r}\n"
+                    f"{meta},{float(c.t[j])!r},{float(c.x[j])!r},{float(c.xdot[j])!r},"
+                    f"{float(c.force[j])!r}\n"
                 )
 
 
@@ -885,6 +886,8 @@ def render(results) -> str:
     if "ode" in results:
         L += ["## 2. ODE models, one generation", ""]
         for name, r in results["ode"].items():
+            if not isinstance(r, dict) or "timings" not in r:
+                continue
             L += [
                 f"### {name}",
                 "",
@@ -938,6 +941,8 @@ def render(results) -> str:
         ]
         rows = []
         for name, r in results["polish"].items():
+            if not isinstance(r, dict) or "pso" not in r:
+                continue
             for m, e in r.items():
                 rows.append(
                     [
@@ -1039,7 +1044,7 @@ class Config:
         self.de_conditions = 2 if quick else 6
         self.ode_generations = 3 if quick else 5
         self.scaling_generations = 2 if quick else 4
-        self.scaling_repeats = 1 if quick else 2
+        self.scaling_repeats = 1
         self.cold_repeats = 1 if quick else 2
         if quick:
             self.sweeps = {"C": [1, 36, 200], "N": [10, 50, 300], "T": [500, 2000, 8000]}

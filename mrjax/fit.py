@@ -167,8 +167,8 @@ class FitResult:
                 "n_samples": int(self.n_samples[i]),
                 "params": {n: float(v) for n, v in zip(self.param_names, self.theta[i])},
                 "stderr": {n: opt(v) for n, v in zip(self.param_names, self.stderr[i])},
-                "rms_N": float(self.rms[i]),
-                "nrmse": float(self.nrmse[i]),
+                "rms_N": opt(self.rms[i]),  # null where the model diverges
+                "nrmse": opt(self.nrmse[i]),
                 "pso_rms_N": opt(self.pso_rms[i]),
                 "generations": gen if gen >= 0 else None,
                 "stopped_by_criterion": bool(self.stopped_by_criterion[i]) if gen >= 0 else None,
@@ -419,6 +419,12 @@ def fit(
     t1 = time.perf_counter()
     final_model = resolve_model(model, theta, batch)
     rms = rms_per_condition(final_model, theta, batch, mask)
+    diverged = np.flatnonzero(~np.isfinite(rms))
+    if diverged.size:
+        warnings.warn(
+            f"condition {batch.labels[diverged[0]]!r}: the model's force is not finite at the "
+            f"fitted parameters ({diverged.size} such condition(s)); its RMS is reported as inf "
+            f"(null in fit.json): narrow the bounds", RuntimeWarning, stacklevel=2)
     fmax = np.max(np.where(np.asarray(mask), np.abs(np.asarray(batch.force)), 0.0), axis=1)
     nrmse = rms / np.where(fmax > 0, fmax, np.nan)
     P = model.n_params

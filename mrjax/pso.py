@@ -237,11 +237,8 @@ def solve_linear(
     b = jnp.where(mask, b, 0.0)
     ZH = Z @ H  # (k, p+1)
     bH = b @ H  # (p+1,)
-    # Z'Z and Z'b as elementwise products summed over the samples rather than (k x T) @ (T x k)
-    # and (k x T) @ (T,) dots: XLA:CPU then reads the one masked Z buffer the Z'H product uses,
-    # instead of materialising another masked copy in a transposed layout (k = 1 here).
-    ZZ = jnp.sum(Z[:, None, :] * Z[None, :, :], axis=-1)
-    Zb = jnp.sum(Z * b[None, :], axis=-1)
+    ZZ = Z @ Z.T
+    Zb = Z @ b
     # Gram quantities of A = [F, Z] against y = force - b
     Fy = HH[:p, p] - bH[:p]
     yy = HH[p, p] - 2.0 * bH[p] + b @ b

@@ -9,7 +9,8 @@ import pytest
 
 import mrjax
 from mrjax import data, models, objective
-from mrjax.refine import Polished, Uncertainty, _resolve_model, polish, uncertainty
+from mrjax.pso import resolve_model as _resolve_model
+from mrjax.refine import Polished, Uncertainty, polish, uncertainty
 
 KWOK = models.get("kwok")
 BINGHAM = models.get("bingham")
