@@ -24,9 +24,10 @@ $p(i) = \\exp(\\sum_m a_m i^m)$, i.e. $\\exp(a + b\\,i)$ at degree 1 (the law th
 used for a Bouc-Wen $\\beta$).
 
 **Default degrees** (:func:`default_degrees`). The tanh model (`"kwok"`) uses the paper's:
-c, k, delta, f0 linear, alpha quadratic, beta constant. Every other model uses degree 1 for
-every parameter and degree 2 for `alpha` (the hysteretic force scale, which saturates with the
-magnetic field like the paper's alpha). An `"exp"` law defaults to degree 1. Default degrees
+c, k, delta, f0 linear, alpha quadratic, beta constant. The other built-in models make their
+force scales linear, their yield/hysteretic force (`alpha`, `fc`) quadratic and the shape of
+their hysteresis constant (after Spencer et al. 1997); an unknown model gets degree 1 for every
+parameter and 2 for `alpha`. An `"exp"` law defaults to degree 1. Default degrees
 are lowered to (number of distinct currents - 1) when the data have fewer currents; a degree
 given explicitly is never lowered (too high a degree is an error).
 
@@ -120,8 +121,15 @@ LAW_KINDS: tuple[str, ...] = ("poly", "exp")
 CURRENT_TOL = 1e-6
 #: Models whose hysteretic variable z has a redundant scale (normalised to |z|max = 1).
 _Z_SCALE_MODELS = ("bouc_wen", "modified_bouc_wen")
-#: The paper's degrees for the tanh model (eq 24-29).
-_KWOK_DEGREES = {"c": 1, "k": 1, "alpha": 2, "beta": 0, "delta": 1, "f0": 1}
+#: Default law degrees per model (see :func:`default_degrees`).
+_DEFAULT_DEGREES: dict[str, dict[str, int]] = {
+    "kwok": {"c": 1, "k": 1, "alpha": 2, "beta": 0, "delta": 1, "f0": 1},  # eq 24-29
+    "bingham": {"fc": 2, "c0": 1, "f0": 1},
+    "bouc_wen": {"c": 1, "k": 1, "alpha": 2, "f0": 1, "delta": 0, "beta": 0, "gamma": 0, "n": 0},
+    "modified_bouc_wen": {"c0": 1, "k0": 0, "c1": 1, "k1": 0, "alpha": 2, "delta": 0, "beta": 0,
+                          "gamma": 0, "n": 0, "f0": 0},
+    "dahl": {"c": 1, "k": 1, "alpha": 2, "rho": 0, "f0": 1},
+}
 #: Relative eigenvalue floor of a per-condition correlation matrix below which its covariance
 #: counts as singular (the two-step "covariance" weighting then falls back to "equal").
 _COV_EIG_FLOOR = 1e-12
@@ -252,14 +260,26 @@ def lag_current(
 
 
 def default_degrees(model: str | AbstractModel, n_currents: int | None = None) -> dict[str, int]:
-    """Default polynomial degree of each parameter's law (see the module docstring).
+    """Default polynomial degree of each parameter's law.
 
-    `"kwok"`: the paper's (c, k, delta, f0: 1; alpha: 2; beta: 0). Other models: 1, and 2 for
-    `alpha`. With `n_currents` given, degrees are capped at `n_currents - 1`.
+    - `"kwok"`: the paper's (eq 24-29): c, k, delta, f0 linear; alpha quadratic; beta constant.
+    - The other built-in models follow the same idea and Spencer et al. (1997), who make the
+        modified Bouc-Wen c0, c1 and alpha linear in the command and keep every other parameter
+        constant: the force scales (damping, stiffness, offset) are linear in the current, the
+        yield or hysteretic force (`alpha`, Bingham's `fc`) is quadratic (it saturates with
+        the magnetic field, like the paper's alpha), and the *shape* of the hysteresis
+        (Bouc-Wen delta, beta, gamma, n on the |z|max = 1 scale; Dahl rho) is constant. The
+        modified Bouc-Wen keeps Spencer's constant k0, k1 and f0 (= -k1 x0). Letting the shape
+        parameters follow the current as well makes these strongly nonlinear models interpolate
+        badly between measured currents (measured on the UTFSM data).
+    - Any other model: degree 1, and 2 for `alpha`.
+
+    With `n_currents` given, degrees are capped at `n_currents - 1`.
     """
     model = get(model)
-    if model.name == "kwok":
-        deg = dict(_KWOK_DEGREES)
+    if model.name in _DEFAULT_DEGREES and set(_DEFAULT_DEGREES[model.name]) == set(
+            model.param_names):
+        deg = dict(_DEFAULT_DEGREES[model.name])
     else:
         deg = {n: (2 if n == "alpha" else 1) for n in model.param_names}
     if n_currents is not None:

@@ -254,8 +254,10 @@ def test_input_errors(grid):
 def test_defaults_and_z_scale():
     assert default_degrees("kwok") == {"c": 1, "k": 1, "alpha": 2, "beta": 0, "delta": 1,
                                        "f0": 1}
-    assert default_degrees("dahl", n_currents=2) == {n: 1 for n in ("c", "k", "alpha", "rho",
-                                                                    "f0")}
+    assert default_degrees("dahl", n_currents=2) == {"c": 1, "k": 1, "alpha": 1, "rho": 0,
+                                                     "f0": 1}
+    mbw = default_degrees("modified_bouc_wen")
+    assert (mbw["c0"], mbw["c1"], mbw["alpha"], mbw["beta"], mbw["n"]) == (1, 1, 2, 0, 0)
     assert set(default_degrees("modified_bouc_wen", n_currents=1).values()) == {0}
     # the |z|max = 1 normalisation leaves the Bouc-Wen force unchanged
     t, x, v, dt = sine(2.0, 0.008)
