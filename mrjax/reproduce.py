@@ -1070,9 +1070,6 @@ def run(
     outp = check_writable(out)
     if data is not None and not Path(data).exists():
         raise InputError(f"{data}: no such file or directory")
-    import matplotlib
-
-    matplotlib.use("Agg")
     files: dict[str, bytes] = {}
 
     def figures(study, final):
