@@ -277,16 +277,16 @@ needs_slow = pytest.mark.skipif(os.environ.get("MRJAX_SLOW") != "1",
                                 reason="long real-data run; set MRJAX_SLOW=1")
 
 
-def _held_out(utfsm, model: str, method: str, **fit_kw):
+def _held_out(utfsm, model: str, method: str, fit_kw=None, gen_kw=None):
     """Fit every motion at 0, 0.5 and 1 A, generalize, predict the 0.25 and 0.75 A tests."""
     conds = data.load(utfsm)
     train = data.make_batch([c for c in conds if c.current in (0.0, 0.5, 1.0)])
     test = data.make_batch([c for c in conds if c.current in (0.25, 0.75)])
     t = time.perf_counter()
-    res = mrjax.fit(model, train, seed=0, **fit_kw)
+    res = mrjax.fit(model, train, seed=0, **(fit_kw or {}))
     t_fit = time.perf_counter() - t
     t = time.perf_counter()
-    gm = generalize(res, train, method=method)
+    gm = generalize(res, train, method=method, **(gen_kw or {}))
     t_gen = time.perf_counter() - t
     ev = gm.evaluate(test)
     print(f"\nUTFSM {model} ({method}): fit {t_fit:.1f} s, generalize {t_gen:.1f} s; "
@@ -311,7 +311,7 @@ def test_utfsm_held_out_currents_tanh(utfsm):
 @pytest.mark.slow
 @needs_slow
 def test_utfsm_held_out_currents_tanh_joint(utfsm):
-    _, gm, ev = _held_out(utfsm, "kwok", "joint")
+    _, gm, ev = _held_out(utfsm, "kwok", "joint")  # measured: 13.9 %
     assert gm.total_rms <= gm.info["two_step_total_rms_N"]
     assert ev["median_nrmse"] <= 0.15
 
@@ -319,8 +319,12 @@ def test_utfsm_held_out_currents_tanh_joint(utfsm):
 @pytest.mark.slow
 @needs_slow
 def test_utfsm_held_out_currents_modified_bouc_wen(utfsm):
-    # the per-test polish of this stiff model on 18 long records alone takes over an hour on
-    # 2 cores: the swarm's parameters are generalized directly
-    _, gm, ev = _held_out(utfsm, "modified_bouc_wen", "two-step", method="pso",
-                          uncertainty=False, max_generations=80)
-    assert ev["median_nrmse"] <= 0.20
+    """About 45 min on 2 busy cores. The per-test polish of this stiff model on 18 long
+    records alone took over an hour, so the swarm's per-test parameters are generalized. They
+    scatter wildly between motions (many on their bounds), so the two-step averages are useless
+    here (55 % held-out); the joint fit reaches 11.0 % (measured with these settings)."""
+    _, gm, ev = _held_out(utfsm, "modified_bouc_wen", "joint",
+                          fit_kw=dict(method="pso", uncertainty=False, max_generations=80),
+                          gen_kw=dict(max_generations=30, polish_steps=20))
+    assert gm.total_rms <= gm.info["two_step_total_rms_N"]
+    assert ev["median_nrmse"] <= 0.13

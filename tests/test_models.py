@@ -341,7 +341,7 @@ def test_auto_substeps_cover_modified_bouc_wen_coupling():
     model = get("modified_bouc_wen")
     lo, hi = model.bounds
     theta = model.params(
-        c0=lo[0], k0=1000.0, c1=lo[2], k1=0.0, alpha=hi[4], delta=hi[5],
+        c0=lo[0], k0=1000.0, c1=100.0, k1=0.0, alpha=hi[4], delta=hi[5],
         beta=100.0, gamma=100.0, n=2.0, f0=0.0,
     )
     F = np.asarray(model.force(theta, X, V, DT))
