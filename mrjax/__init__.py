@@ -17,6 +17,7 @@ if _os.environ.get("MRJAX_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
 
 from . import data as data
+from . import generalize as generalize
 from . import models as models
 from . import pso as pso
 from . import refine as refine

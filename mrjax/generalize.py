@@ -44,19 +44,21 @@ correlations between parameters). It falls back to `"equal"` (recorded in
 
 **Joint generalization.** The law coefficients themselves are the unknowns, fitted to all
 conditions at once: the objective is the RMS force error over every scored sample of every
-condition (:func:`mrjax.objective.masked_rms` on the flattened batch), computed in one
-batched evaluation. The batched particle swarm (:func:`mrjax.pso.swarm`, one "condition"
-holding the whole batch) searches the laws of the nonlinear parameters; the laws of the
-parameters the force is linear in (c, k, alpha, f0 of the tanh model) are linear in their
-coefficients too, so every particle gets them by exact linear least squares (variable
-projection). The swarm searches each law through its *values at d+1 nodes* spread over the
-current range (a well-scaled, unit-bearing parametrization of a degree-d polynomial; log
-values for an `"exp"` law), in a box around the two-step solution: $\\pm$(3 x the scatter of
-the per-condition values about the two-step law + 25 % of the value). A float64
-Levenberg-Marquardt polish (optimistix) then refines every coefficient on the stacked residuals
-of all conditions, starting from the better of the swarm's best and the two-step solution, and
-is kept only if it lowers the total RMS, so the joint total RMS is never above the two-step
-one on the same data.
+condition (:func:`mrjax.objective.masked_rms` on the flattened batch; swarm particles get the
+same number from Gram sums through :func:`mrjax.objective.rms_from_gram`, as in the separable
+per-condition swarm), computed in one batched evaluation. A static model's scored samples are
+packed by current first, so short tests are not padded to the longest one. The batched particle
+swarm (:func:`mrjax.pso.swarm`, one "condition" holding the whole batch) searches the laws of
+the nonlinear parameters; the laws of the parameters the force is linear in (c, k, alpha, f0 of
+the tanh model) are linear in their coefficients too, so every particle gets them by exact
+linear least squares (variable projection). The swarm searches each law through its *values at
+d+1 nodes* spread over the current range (a well-scaled, unit-bearing parametrization of a
+degree-d polynomial; log values for an `"exp"` law), in a box around the two-step solution:
+$\\pm$(3 x the scatter of the per-condition values about the two-step law + 25 % of the value).
+A float64 Levenberg-Marquardt polish (optimistix) then refines every coefficient on the stacked
+residuals of all conditions, starting from the better of the swarm's best and the two-step
+solution, and is kept only if it lowers the total RMS, so the joint total RMS is never above
+the two-step one on the same data.
 
 **Hysteretic scale of Bouc-Wen models.** In Bouc-Wen and modified Bouc-Wen models the scale of
 z is redundant (see `mrjax.models._hysteretic`): per-condition fits may pick different scales,
