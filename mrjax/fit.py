@@ -455,7 +455,9 @@ def fit(
     return result
 
 
-def save(result: FitResult, out_dir: str | os.PathLike, *, extra_files: dict[str, bytes] | None = None) -> Path:
+def save(
+    result: FitResult, out_dir: str | os.PathLike, *, extra_files: dict[str, bytes] | None = None
+) -> Path:
     """Write `fit.json` and `fit.csv` (plus `extra_files`) into `out_dir` atomically."""
     from ._io import atomic_output
 

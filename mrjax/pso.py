@@ -530,7 +530,8 @@ def swarm(
         raise InputError("swarm bounds must be finite")
     if np.any(lo_np > hi_np):
         i = np.argwhere(lo_np > hi_np)[0]
-        raise InputError(f"swarm bounds inverted in dimension {i[-1]}: lower {lo_np[tuple(i)]} > upper {hi_np[tuple(i)]}")
+        raise InputError(f"swarm bounds inverted in dimension {i[-1]}: "
+                         f"lower {lo_np[tuple(i)]} > upper {hi_np[tuple(i)]}")
     if n_particles < 1 or max_generations < 1:
         raise InputError("n_particles and max_generations must be at least 1")
     keys = _keys_for(key, C)

@@ -40,7 +40,7 @@ def test_pso_lm_reaches_truth_on_paper_grid(grid, grid_fit):
     ratio = res.rms / truth_rms
     rel = np.abs(res.theta / truth - 1.0)
     med = np.median(rel, axis=0)
-    print("\nRMS/truth max %.5f median %.5f" % (ratio.max(), np.median(ratio)))
+    print(f"\nRMS/truth max {ratio.max():.5f} median {np.median(ratio):.5f}")
     print("median |relative error| per parameter:",
           {n: f"{100 * v:.2f}%" for n, v in zip(res.param_names, med)})
     assert ratio.max() <= 1.001
