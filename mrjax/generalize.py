@@ -103,7 +103,7 @@ from ._errors import InputError
 from .data._condition import Batch
 from .fit import FitResult, as_batch
 from .models import AbstractModel, get
-from .objective import masked_rms, residuals, rms_from_gram
+from .objective import check_mask, masked_rms, residuals, rms_from_gram
 from .pso import (
     SWARM_MAX_SUBSTEPS,
     AbstractObjective,
@@ -571,7 +571,7 @@ class GeneralizedModel:
         """
         batch = as_batch(batch)
         pred = self.predict(batch, current=current, lag=lag)
-        m = _mask(batch, mask)
+        m = check_mask(batch, mask)
         rms, total = _scores(jnp.asarray(pred), batch.force, jnp.asarray(m))
         rms = np.asarray(rms)
         fmax = np.max(np.where(m, np.abs(np.asarray(batch.force)), 0.0), axis=1)
@@ -676,16 +676,6 @@ def _check_lag(lag):
     if not (math.isfinite(v) and v > 0):
         raise InputError(f"lag (eta) must be a positive rate in 1/s, got {lag!r}")
     return v
-
-
-def _mask(batch: Batch, mask) -> np.ndarray:
-    base = np.asarray(batch.mask, bool)
-    if mask is None:
-        return base
-    m = np.asarray(mask)
-    if m.shape != base.shape:
-        raise InputError(f"mask must have the batch shape {base.shape}, got {m.shape}")
-    return m.astype(bool) & base
 
 
 # ------------------------------------------------------------------------------ compiled cores
@@ -1045,7 +1035,7 @@ def generalize(
         if neg.size:
             raise InputError(f"law 'exp' of {model.param_names[p]!r} needs positive values; "
                              f"condition {batch.labels[neg[0]]!r} has {theta[neg[0], p]:g}")
-    m = _mask(batch, mask)
+    m = check_mask(batch, mask)
 
     # ---- two-step
     used, note = weighting, ""

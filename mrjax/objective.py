@@ -80,6 +80,20 @@ def fitness(
     return masked_rms(model.force(theta, x, xdot, dt), force, mask)
 
 
+def check_mask(batch: Batch, mask: ArrayLike | None) -> np.ndarray:
+    """Host-side scored-sample mask: `batch.mask` and a user `mask` of the batch shape (C, T).
+
+    Raises :class:`mrjax.InputError` for a mask of the wrong shape.
+    """
+    base = np.asarray(batch.mask, bool)
+    if mask is None:
+        return base
+    m = np.asarray(mask)
+    if m.shape != base.shape:
+        raise InputError(f"mask must have the batch shape {base.shape}, got {m.shape}")
+    return m.astype(bool) & base
+
+
 def fit_mask(batch: Batch, transient: float | str | None = None) -> Bool[Array, "C T"]:
     """The samples a fit scores: the batch mask, optionally without an initial transient.
 

@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ._errors import InputError
 from .data._condition import Batch
 from .models._base import AbstractModel
-from .objective import fitness, residuals
+from .objective import check_mask, fitness, residuals
 from .pso import resolve_model
 
 #: Relative eigenvalue cutoff of the column-scaled $J^T J$ (unit diagonal) below which a
@@ -261,16 +261,6 @@ def _as_theta(model: AbstractModel, theta: ArrayLike, C: int, what: str) -> np.n
         i, j = np.argwhere(~np.isfinite(th))[0]
         raise InputError(f"{what}[{i}, {j}] ({model.param_names[j]}) is not finite: {th[i, j]}")
     return np.array(th)
-
-
-def _as_mask(batch: Batch, mask) -> np.ndarray:
-    base = np.asarray(batch.mask, bool)
-    if mask is None:
-        return base
-    m = np.asarray(mask)
-    if m.shape != base.shape:
-        raise InputError(f"mask must have the batch shape {base.shape}, got {m.shape}")
-    return m.astype(bool) & base
 
 
 def _as_free(model: AbstractModel, free) -> np.ndarray:
@@ -501,7 +491,7 @@ def uncertainty(
     _require_x64()
     C = batch.n_conditions
     theta = _as_theta(model, theta, C, "theta")
-    m = _as_mask(batch, mask)
+    m = check_mask(batch, mask)
     fr = _as_free(model, free)
     model = resolve_model(model, theta, batch)
     free_idx = tuple(int(i) for i in np.flatnonzero(fr))
@@ -565,7 +555,7 @@ def polish(
     C = batch.n_conditions
     lo, hi = _as_bounds(model, lower, upper)
     theta0 = np.clip(_as_theta(model, theta0, C, "theta0"), lo, hi)
-    m = _as_mask(batch, mask)
+    m = check_mask(batch, mask)
     fr = _as_free(model, free)
     fit = fr & (lo < hi)
     free_idx = tuple(int(i) for i in np.flatnonzero(fit))
