@@ -66,19 +66,29 @@ def test_separable_reaches_truth_and_stops_by_criterion(grid, truth_rms):
     assert np.allclose(rms_per_condition(models.get("kwok"), th, grid), res.rms, rtol=1e-9)
 
 
-def test_full_mode_tanh_stops_before_bouc_wen(grid, truth_rms):
+def test_full_mode_paper_box_tanh_beats_bouc_wen(grid, truth_rms):
+    """The paper's swarm (full mode, statistical stop) in the paper's search box: on the
+    tanh-simulated grid the tanh fits end with the lower median RMS (paper's Fig 9), every
+    condition stops by the criterion, and the stop falls after 10-40 generations (paper: ~15).
+    Measured for seeds 0-2: tanh 34-40 N vs Bouc-Wen 56-62 N. (The paper's "> 30 generations
+    for Bouc-Wen" does not reproduce on these data: both stop after ~17-20.)"""
+    from mrjax.reproduce import PAPER_BOX
+
     out = {}
     for name in ("kwok", "bouc_wen"):
-        res = fit_swarm(models.get(name), grid, key=jax.random.key(1), mode="full",
+        m = models.get(name) if name == "kwok" else models.get(name).with_substeps(1)
+        lo, hi = (jnp.asarray(b) for b in PAPER_BOX[name])
+        res = fit_swarm(m, grid, key=jax.random.key(1), mode="full", bounds=(lo, hi),
                         max_generations=150)
         gens = np.asarray(res.swarm.generations)
-        ratio = np.asarray(res.rms) / truth_rms
-        out[name] = gens
-        print(f"\nfull {name}: generations min/median/mean/max {gens.min()}/{np.median(gens)}/"
-              f"{gens.mean():.1f}/{gens.max()}, RMS/truth median {np.median(ratio):.3f} "
-              f"max {ratio.max():.3f}, by criterion {np.mean(res.swarm.stopped_by_criterion):.2f}")
-        assert np.all(np.isfinite(np.asarray(res.rms)))
-    assert out["kwok"].mean() < out["bouc_wen"].mean()
+        rms = np.asarray(res.rms)
+        print(f"\nfull {name}, paper box: generations min/median/mean/max {gens.min()}/"
+              f"{np.median(gens)}/{gens.mean():.1f}/{gens.max()}, median RMS {np.median(rms):.1f} N "
+              f"(truth {np.median(truth_rms):.1f} N)")
+        assert np.all(np.isfinite(rms)) and np.all(np.asarray(res.swarm.stopped_by_criterion))
+        assert 10 <= np.median(gens) <= 40
+        out[name] = np.median(rms)
+    assert out["kwok"] < 0.8 * out["bouc_wen"]
 
 
 def test_sphere_known_optimum():
