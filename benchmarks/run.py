@@ -656,7 +656,7 @@ def section_cold(cfg) -> dict:
         tmp = Path(tmp)
         csv = tmp / "grid.csv"
         write_csv(paper_grid(), csv)
-        env = dict(os.environ, MPLBACKEND="Agg")
+        env = dict(os.environ, MPLBACKEND="Agg", MRJAX_CACHE_DIR="off")
         env.pop("JAX_COMPILATION_CACHE_DIR", None)
         mr_cmd = [
             sys.executable,
@@ -679,7 +679,7 @@ def section_cold(cfg) -> dict:
         ]
         cache_env = dict(
             env,
-            JAX_COMPILATION_CACHE_DIR=str(tmp / "jax-cache"),
+            MRJAX_CACHE_DIR=str(tmp / "jax-cache"),
             JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
             JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0",
         )

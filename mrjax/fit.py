@@ -300,6 +300,7 @@ def fit(
     progress: bool | None = False,
     devices: Sequence | None = None,
     callback: Callable | None = None,
+    swarm_dtype: Any = None,
 ) -> FitResult:
     """Identify `model` on every test condition of `data` at once.
 
@@ -326,6 +327,9 @@ def fit(
     - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
         `jax.Device` (default: one device); see `mrjax.parallel`. Same key, same result.
     - `callback`: host callback for the swarm, see `mrjax.pso.swarm`.
+    - `swarm_dtype`: float dtype of the swarm's search, e.g. `"float32"` (about twice as fast
+        on CPU; see benchmarks/results.md). Default: the default float (float64 when x64 is
+        on). The swarm's best positions are re-scored, polished and reported in float64.
 
     **Returns:** a :class:`FitResult`.
 
@@ -385,7 +389,7 @@ def fit(
         try:
             sw = fit_swarm(model, batch, key=key, mode=swarm, bounds=(lo, hi), mask=mask,
                            params=pso_params, n_particles=n_particles, max_generations=G,
-                           callback=cb)
+                           callback=cb, dtype=swarm_dtype)
             jax.block_until_ready(sw.rms)
         finally:
             if bar is not None:

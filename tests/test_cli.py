@@ -436,6 +436,35 @@ def test_help_and_version():
     assert code == 0 and "--generalize" in out and "--transient" in out
 
 
+def test_compilation_cache_setting(tmp_path, monkeypatch):
+    """`mrjax fit/predict/reproduce` use a persistent compilation cache: `$MRJAX_CACHE_DIR`,
+    `off` disables it, and a user's `JAX_COMPILATION_CACHE_DIR` wins."""
+    import jax
+
+    before = jax.config.jax_compilation_cache_dir
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    try:
+        monkeypatch.setenv("MRJAX_CACHE_DIR", "off")
+        assert cli._enable_compilation_cache() is None
+        target = tmp_path / "cache" / "xla"
+        monkeypatch.setenv("MRJAX_CACHE_DIR", str(target))
+        assert cli._enable_compilation_cache() == str(target)
+        assert target.is_dir() and jax.config.jax_compilation_cache_dir == str(target)
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", "/somewhere/else")
+        assert cli._enable_compilation_cache() == "/somewhere/else"
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_fit_float32_swarm(csv_file, tmp_path):
+    out = tmp_path / "f32"
+    code, _, err = run(["fit", csv_file, "--model", "kwok", "--swarm-dtype", "float32",
+                        "--no-plots", "--out", out])
+    assert code == 0, err
+    doc = json.loads((out / "fit.json").read_text())
+    assert all(math.isfinite(c["rms_N"]) for c in doc["conditions"])
+
+
 def test_generalize_unavailable_fails_before_fitting(csv_file, tmp_path, monkeypatch):
     real = cli._module
     monkeypatch.setattr(cli, "_module", lambda n: None if n == "mrjax.generalize" else real(n))

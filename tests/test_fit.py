@@ -114,6 +114,16 @@ def test_full_swarm_and_fixed_generations(grid):
     assert res.history.shape == (2, 8)
 
 
+def test_float32_swarm_reaches_the_float64_optimum(grid, grid_fit):
+    """`swarm_dtype="float32"`: the search runs in float32, the polish and results in float64,
+    and the polished optimum is that of the float64 run."""
+    idx = [0, 17, 35]
+    res = mrjax.fit("kwok", grid.subset(idx), seed=0, swarm_dtype="float32", uncertainty=False)
+    assert res.theta.dtype == np.float64 and res.rms.dtype == np.float64
+    assert np.allclose(res.rms, grid_fit.rms[idx], rtol=1e-6)
+    assert np.all(res.rms <= res.pso_rms * (1 + 1e-12))
+
+
 def test_bad_options(grid):
     sub = grid.subset([0])
     with pytest.raises(mrjax.InputError, match="method"):

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import numpy as np
 from jaxtyping import ArrayLike
-from scipy.signal import savgol_filter
 
 from .._errors import InputError
 
@@ -154,5 +153,7 @@ def estimate_velocity(
                 f"record has only {n}"
             )
     if np.max(np.abs(steps - dt)) <= _UNIFORM_RTOL * dt:
+        from scipy.signal import savgol_filter  # imported here: scipy.signal costs ~0.7 s
+
         return savgol_filter(x, window, polyorder, deriv=1, delta=dt, mode="interp")
     return _local_polyfit_slope(t, x, window, polyorder)
