@@ -1035,6 +1035,9 @@ def _notes(doc: dict[str, Any]) -> list[str]:
             "tanh-simulated data both swarms' curves flatten after 15-20 generations. Other "
             "windows or a burn-in shift both counts together (checked for windows 8-16 and "
             "seeds 0-2); none makes Bouc-Wen's robustly longer.")
+    out.append("Generation counts move by several generations from one seed to another (the "
+               "stop is a statistical test on a random search): compare them over a few seeds "
+               "(`mrjax reproduce --seed N`) before reading a difference of one or two.")
     if doc["data"]["truth"]:
         out.append("The paper's swarm searches `mrjax.reproduce.PAPER_BOX` (about twice the "
                    "range of eq 24-29) on the embedded data; in mrjax's wide default box it "
