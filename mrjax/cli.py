@@ -226,7 +226,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
         n_particles=args.particles,
         max_generations=args.max_generations if args.max_generations is not None else 200,
         generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
-        swarm_dtype=args.swarm_dtype,
+        swarm_dtype=args.swarm_dtype, restarts=args.restarts,
     )
 
     gm = None
@@ -452,6 +452,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--swarm", choices=("separable", "full"), default="separable",
                    help="separable: variable projection over the linear parameters (default); "
                    "full: the paper's swarm over all parameters")
+    p.add_argument("--restarts", type=_positive_int, default=1, metavar="K",
+                   help="independent swarms per test, best one polished (default 1)")
     p.add_argument("--swarm-dtype", choices=("float64", "float32"), default=None,
                    help="precision of the swarm's search (default float64; float32 is about "
                    "twice as fast; the polish and the results stay float64)")

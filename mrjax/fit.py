@@ -301,6 +301,7 @@ def fit(
     devices: Sequence | None = None,
     callback: Callable | None = None,
     swarm_dtype: Any = None,
+    restarts: int = 1,
 ) -> FitResult:
     """Identify `model` on every test condition of `data` at once.
 
@@ -330,6 +331,11 @@ def fit(
     - `swarm_dtype`: float dtype of the swarm's search, e.g. `"float32"` (about twice as fast
         on CPU; see benchmarks/results.md). Default: the default float (float64 when x64 is
         on). The swarm's best positions are re-scored, polished and reported in float64.
+    - `restarts`: run this many independent swarms per condition (one compiled program: the
+        conditions are repeated along the batch axis, each copy with its own random stream) and
+        polish the best of them. Costs `restarts` times the swarm; guards the many-parameter
+        ODE models (modified Bouc-Wen) against a swarm that ends in a poor basin. The reported
+        generations, stop flag and history are those of the chosen swarm. Default 1.
 
     **Returns:** a :class:`FitResult`.
 
@@ -364,7 +370,11 @@ def fit(
             min_generations=base.min_generations, criterion=False,
             velocity_clamp=base.velocity_clamp)
         max_generations = int(generations)
+    if isinstance(restarts, bool) or int(restarts) != restarts or restarts < 1:
+        raise InputError(f"restarts must be an integer >= 1, got {restarts!r}")
+    restarts = int(restarts)
     n_real = batch.n_conditions
+    orig_batch = batch
     if devices is not None:
         from .parallel import shard_batch
         batch, mask = shard_batch(batch, mask, devices)  # may pad C to a multiple of devices
@@ -378,7 +388,14 @@ def fit(
     hist = np.zeros((C, 0))
     if method in ("pso", "pso+lm"):
         t1 = time.perf_counter()
-        cb, bar = _progress_callback(progress, G, C)
+        s_batch, s_mask = batch, mask
+        if restarts > 1:  # every condition `restarts` times: copy k of condition i at k*C + i
+            s_batch = orig_batch.subset(np.tile(np.arange(n_real), restarts))
+            s_mask = fit_mask(s_batch, transient)
+            if devices is not None:
+                from .parallel import shard_batch
+                s_batch, s_mask = shard_batch(s_batch, s_mask, devices)
+        cb, bar = _progress_callback(progress, G, s_batch.n_conditions)
         if callback is not None:
             user_cb, prog_cb = callback, cb
 
@@ -387,7 +404,7 @@ def fit(
                     prog_cb(g, d, b)
                 user_cb(g, d, b)
         try:
-            sw = fit_swarm(model, batch, key=key, mode=swarm, bounds=(lo, hi), mask=mask,
+            sw = fit_swarm(model, s_batch, key=key, mode=swarm, bounds=(lo, hi), mask=s_mask,
                            params=pso_params, n_particles=n_particles, max_generations=G,
                            callback=cb, dtype=swarm_dtype)
             jax.block_until_ready(sw.rms)
@@ -399,6 +416,9 @@ def fit(
         gens = np.asarray(sw.swarm.generations)
         crit = np.asarray(sw.swarm.stopped_by_criterion)
         hist = np.asarray(sw.swarm.history)
+        if restarts > 1:
+            theta, pso_rms, gens, crit, hist = _best_restart(
+                n_real, restarts, C, theta, pso_rms, gens, crit, hist)
         timings["swarm"] = time.perf_counter() - t1
     else:
         theta = np.broadcast_to(np.clip(model.default_start(), lo, hi), (C, model.n_params)).copy()
@@ -457,6 +477,17 @@ def fit(
         from .parallel import unpad
         result = unpad(result, n_real)
     return result
+
+
+def _best_restart(n: int, k: int, c: int, *arrays):
+    """Rows of the best of `k` swarms per condition (copy j of condition i at row j*n + i,
+    best = lowest finite RMS, the second array), padded back to `c` rows with copies of the
+    last condition (as `shard_batch` pads)."""
+    rms = np.asarray(arrays[1], float)[: n * k].reshape(k, n)
+    best = np.argmin(np.where(np.isfinite(rms), rms, np.inf), axis=0)
+    rows = best * n + np.arange(n)
+    rows = np.concatenate([rows, np.full(c - n, rows[-1])])
+    return tuple(np.asarray(a)[rows] for a in arrays)
 
 
 def save(

@@ -124,6 +124,28 @@ def test_float32_swarm_reaches_the_float64_optimum(grid, grid_fit):
     assert np.all(res.rms <= res.pso_rms * (1 + 1e-12))
 
 
+def test_restarts_keep_the_best_swarm_per_condition(grid):
+    """`restarts=K`: K independent swarms per condition in one batch (copy j of condition i at
+    row j*C + i of the repeated batch, same key); the best (lowest RMS) is kept."""
+    from mrjax.pso import fit_swarm
+
+    sub = grid.subset([0, 20, 35])
+    K, C = 3, sub.n_conditions
+    res = mrjax.fit("kwok", sub, method="pso", swarm="full", seed=4, restarts=K,
+                    max_generations=15, uncertainty=False)
+    rep = fit_swarm(models.get("kwok"), sub.subset(np.tile(np.arange(C), K)),
+                    key=jax.random.key(4), mode="full", max_generations=15)
+    rms = np.asarray(rep.rms).reshape(K, C)
+    best = np.argmin(rms, axis=0)
+    assert len(set(np.round(rms[:, 0], 6))) > 1  # the copies are independent searches
+    np.testing.assert_allclose(res.pso_rms, rms.min(axis=0), rtol=1e-12)
+    np.testing.assert_array_equal(
+        res.theta, np.asarray(rep.theta).reshape(K, C, -1)[best, np.arange(C)])
+    assert res.history.shape == (C, 16) and res.labels == sub.labels
+    with pytest.raises(mrjax.InputError, match="restarts"):
+        mrjax.fit("kwok", sub, restarts=0)
+
+
 def test_bad_options(grid):
     sub = grid.subset([0])
     with pytest.raises(mrjax.InputError, match="method"):
