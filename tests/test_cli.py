@@ -456,6 +456,18 @@ def test_compilation_cache_setting(tmp_path, monkeypatch):
         jax.config.update("jax_compilation_cache_dir", before)
 
 
+def test_compilation_cache_is_written(csv_file, tmp_path):
+    """A real `mrjax fit` process fills `$MRJAX_CACHE_DIR` with compiled programs."""
+    cache = tmp_path / "xla"
+    env = dict(os.environ, MRJAX_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    p = subprocess.run([sys.executable, "-m", "mrjax.cli", "fit", str(csv_file), "--model", "kwok",
+                        "--generations", "2", "--no-plots", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert cache.is_dir() and any(cache.iterdir())
+
+
 def test_fit_float32_swarm(csv_file, tmp_path):
     out = tmp_path / "f32"
     code, _, err = run(["fit", csv_file, "--model", "kwok", "--swarm-dtype", "float32",
