@@ -704,26 +704,19 @@ def section_cold(cfg) -> dict:
         # where a cold mrjax process spends its time
         bd = tmp / "breakdown.py"
         bd.write_text(_BREAKDOWN)
-        p = subprocess.run(
-            [sys.executable, str(bd), str(csv), str(tmp / "bd")],
-            capture_output=True,
-            text=True,
-            env=env,
-            cwd=REPO,
-        )
-        out["breakdown"] = (
-            json.loads(p.stdout.strip().splitlines()[-1]) if p.returncode == 0 else p.stderr[-1000:]
-        )
-        p = subprocess.run(
-            [sys.executable, str(bd), str(csv), str(tmp / "bd2")],
-            capture_output=True,
-            text=True,
-            env=cache_env,
-            cwd=REPO,
-        )
-        out["breakdown_warm_cache"] = (
-            json.loads(p.stdout.strip().splitlines()[-1]) if p.returncode == 0 else p.stderr[-1000:]
-        )
+        for key, e in (("breakdown", env), ("breakdown_warm_cache", cache_env)):
+            p = subprocess.run(
+                [sys.executable, str(bd), str(csv), str(tmp / key)],
+                capture_output=True,
+                text=True,
+                env=e,
+                cwd=REPO,
+            )
+            out[key] = (
+                json.loads(p.stdout.strip().splitlines()[-1])
+                if p.returncode == 0
+                else p.stderr[-1000:]
+            )
         # a warm-cache process under cProfile: how much of it is JAX tracing
         prof = tmp / "warm.prof"
         _run([sys.executable, "-m", "cProfile", "-o", str(prof), *mr_cmd[1:]], cache_env)

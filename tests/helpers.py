@@ -80,3 +80,19 @@ def sine(
         frequency, amplitude, sample_rate=sample_rate, cycles=cycles
     )
     return t, x, v, 1.0 / sample_rate
+
+
+def draw_sine(draw, n: int, min_rate: float):
+    """Hypothesis helper: `(t, x, xdot, rate, frequency, amplitude)` of a sinusoid of 1-2 cycles
+    in `n` samples at `min_rate`-1000 Hz, 2-15 mm amplitude and random phase (`draw` from
+    `st.composite`); SI units."""
+    from hypothesis import strategies as st
+
+    rate = draw(st.floats(min_rate, 1000.0))
+    cycles = draw(st.floats(1.0, 2.0))
+    amp = draw(st.floats(0.002, 0.015))
+    phase = draw(st.floats(0.0, 2 * np.pi))
+    f = cycles * rate / n
+    t, x, v = mrjax.data.sine_excitation(f, amp, sample_rate=rate, cycles=cycles, phase=phase)
+    assert x.shape == (n,)
+    return t, x, v, rate, f, amp

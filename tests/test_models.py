@@ -13,7 +13,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.integrate
-from helpers import MODEL_NAMES, ODE_MODELS, STATIC_MODELS, TRUE_PARAMS, sine, spencer1997
+from helpers import (
+    MODEL_NAMES,
+    ODE_MODELS,
+    STATIC_MODELS,
+    TRUE_PARAMS,
+    draw_sine,
+    sine,
+    spencer1997,
+)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -524,14 +532,7 @@ def excitation_and_params(draw, name):
         # it z grows without bound: the swarm scores such particles inf, see test_reliability)
         b, g = names.index("beta"), names.index("gamma")
         theta[b] = max(theta[b], -theta[g])
-    rate = draw(st.floats(500.0, 1000.0))
-    cycles = draw(st.floats(1.0, 2.0))
-    amp = draw(st.floats(0.002, 0.015))
-    phase = draw(st.floats(0.0, 2 * np.pi))
-    f = cycles * rate / N_REAL
-    t = np.arange(N_REAL) / rate
-    x = amp * np.sin(2 * np.pi * f * t + phase)
-    v = amp * 2 * np.pi * f * np.cos(2 * np.pi * f * t + phase)
+    _, x, v, rate, _, _ = draw_sine(draw, N_REAL, 500.0)
     return theta, x, v, 1.0 / rate
 
 

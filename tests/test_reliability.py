@@ -35,7 +35,7 @@ import jax
 import numpy as np
 import pytest
 import scipy.io
-from helpers import MODEL_NAMES, TRUE_PARAMS
+from helpers import MODEL_NAMES, TRUE_PARAMS, draw_sine
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -601,14 +601,7 @@ def random_tests(draw, name, lengths=LENGTHS, damper=False):
     unit = st.floats(0.0, 1.0)
     conds, thetas = [], []
     for j, n in enumerate(lengths):
-        rate = draw(st.floats(200.0, 1000.0))
-        cycles = draw(st.floats(1.0, 2.0))
-        amp = draw(st.floats(0.002, 0.015))
-        phase = draw(st.floats(0.0, 2 * np.pi))
-        f = cycles * rate / n
-        t = np.arange(n) / rate
-        x = amp * np.sin(2 * np.pi * f * t + phase)
-        v = amp * 2 * np.pi * f * np.cos(2 * np.pi * f * t + phase)
+        t, x, v, rate, f, amp = draw_sine(draw, n, 200.0)
         force = np.random.default_rng(draw(st.integers(0, 2**16))).normal(0, 20.0, n)
         if damper:
             scale = draw(st.lists(st.floats(0.7, 1.3), min_size=len(lo), max_size=len(lo)))

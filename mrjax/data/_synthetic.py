@@ -44,11 +44,13 @@ def paper_parameters(current: float | ArrayLike) -> np.ndarray:
 
 
 def sine_excitation(
-    frequency: float, amplitude: float, *, sample_rate: float = 1000.0, cycles: float = 2.0
+    frequency: float, amplitude: float, *, sample_rate: float = 1000.0, cycles: float = 2.0,
+    phase: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Time [s], displacement [m] and analytic velocity [m/s] of $x = A\\sin(2\\pi f t)$.
+    """Time [s], displacement [m] and analytic velocity [m/s] of
+    $x = A\\sin(2\\pi f t + \\varphi)$, `phase` $\\varphi$ in rad (default 0).
 
-    `cycles` whole periods are sampled at `sample_rate` [Hz], endpoint excluded.
+    `cycles` periods are sampled at `sample_rate` [Hz], endpoint excluded.
     """
     if not (frequency > 0 and amplitude > 0 and sample_rate > 0 and cycles > 0):
         raise InputError(
@@ -60,7 +62,7 @@ def sine_excitation(
         raise InputError(f"sample_rate={sample_rate} Hz gives only {n} samples for {cycles} cycles")
     t = np.arange(n) / sample_rate
     w = 2.0 * np.pi * frequency
-    return t, amplitude * np.sin(w * t), amplitude * w * np.cos(w * t)
+    return t, amplitude * np.sin(w * t + phase), amplitude * w * np.cos(w * t + phase)
 
 
 def simulate(
