@@ -389,7 +389,7 @@ def fit(
     if method in ("pso", "pso+lm"):
         t1 = time.perf_counter()
         s_batch, s_mask = batch, mask
-        if restarts > 1:  # every condition `restarts` times: copy k of condition i at k*C + i
+        if restarts > 1:  # every condition `restarts` times: copy k of condition i at row k*n_real + i
             s_batch = orig_batch.subset(np.tile(np.arange(n_real), restarts))
             s_mask = fit_mask(s_batch, transient)
             if devices is not None:
