@@ -1,11 +1,15 @@
-"""Atomic output: a set of files appears in a directory completely, or not at all."""
+"""Output files: atomic directories (all files or none) and the one JSON writer of mrjax."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import shutil
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from ._errors import InputError
 
@@ -73,3 +77,44 @@ def atomic_output(out_dir: str | os.PathLike, files: dict[str, bytes]) -> Path:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def json_safe(obj):
+    """Plain JSON values: NumPy scalars and arrays to Python, NaN and inf to `None` (JSON has
+    no NaN), tuples to lists, mapping keys to `str`. The one NaN -> null rule of every mrjax
+    JSON file."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    return obj
+
+
+def _dumps(o, indent: int = 0) -> str:
+    pad, inner = " " * indent, " " * (indent + 1)
+    if isinstance(o, dict):
+        if not o:
+            return "{}"
+        items = [f"{inner}{json.dumps(k)}: {_dumps(v, indent + 1)}" for k, v in o.items()]
+        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+    if isinstance(o, list) and any(isinstance(v, (dict, list)) for v in o):
+        if all(isinstance(v, list) and not any(isinstance(w, (dict, list)) for w in v)
+               for v in o):
+            rows = [f"{inner}{json.dumps(v, allow_nan=False)}" for v in o]
+        else:
+            rows = [f"{inner}{_dumps(v, indent + 1)}" for v in o]
+        return "[\n" + ",\n".join(rows) + f"\n{pad}]"
+    return json.dumps(o, allow_nan=False)
+
+
+def json_bytes(doc) -> bytes:
+    """A report document as UTF-8 JSON text: :func:`json_safe` values, one key per line, lists
+    of plain values kept on one line, a final newline (summary.json, predict.json, ...)."""
+    return (_dumps(json_safe(doc)) + "\n").encode()

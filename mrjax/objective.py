@@ -80,6 +80,19 @@ def fitness(
     return masked_rms(model.force(theta, x, xdot, dt), force, mask)
 
 
+def nrmse(
+    rms: Float[ArrayLike, " C"], force: Float[ArrayLike, "C T"], mask: Bool[ArrayLike, "C T"]
+) -> np.ndarray:
+    """Normalised RMS error per condition (host NumPy): `rms / max|force|` over the scored
+    samples (dimensionless; multiply by 100 for %). NaN where a condition's force is all zero.
+
+    **Arguments:** `rms` (C,) [N]; `force` (C, T) measured force [N]; `mask` (C, T) scored
+    samples.
+    """
+    fmax = np.max(np.where(np.asarray(mask, bool), np.abs(np.asarray(force, float)), 0.0), axis=1)
+    return np.asarray(rms, float) / np.where(fmax > 0, fmax, np.nan)
+
+
 def check_mask(batch: Batch, mask: ArrayLike | None) -> np.ndarray:
     """Host-side scored-sample mask: `batch.mask` and a user `mask` of the batch shape (C, T).
 
