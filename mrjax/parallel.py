@@ -40,7 +40,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from ._errors import InputError
-from .data._condition import Batch
+from .data import Batch
 
 #: Name of the mesh axis the conditions are sharded over.
 AXIS = "conditions"

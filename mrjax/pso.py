@@ -48,10 +48,9 @@ clipping, so a clipped particle is scored honestly).
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -60,9 +59,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._errors import InputError
-from .data._condition import Batch
-from .models._base import AbstractModel
-from .objective import masked_rms, rms_from_gram
+from .models import check_box
 
 # ------------------------------------------------------------------------------ hyperparameters
 
@@ -182,120 +179,6 @@ class AbstractObjective(eqx.Module):
         return position
 
 
-def condition_data(batch: Batch, mask: ArrayLike | None = None) -> tuple[Array, ...]:
-    """The per-condition arrays the model objectives read: `(x, xdot, dt, force, mask)`,
-    each (C, T). `mask` overrides `batch.mask` (e.g. to drop a transient)."""
-    m = batch.mask if mask is None else jnp.asarray(mask)
-    return (batch.x, batch.xdot, batch.dt, batch.force, m)
-
-
-class FullObjective(AbstractObjective):
-    """The paper's objective: the swarm searches every parameter; fitness is the masked RMS."""
-
-    model: AbstractModel
-
-    def __call__(self, position, data):
-        x, xdot, dt, force, mask = data
-        return masked_rms(self.model.force(position, x, xdot, dt), force, mask)
-
-
-def solve_linear(
-    model: AbstractModel,
-    theta: Float[Array, " P"],
-    data: tuple[Array, ...],
-    lower: Float[Array, " P"],
-    upper: Float[Array, " P"],
-) -> tuple[Float[Array, " P"], Float[Array, ""]]:
-    """Variable projection for one particle on one condition.
-
-    Given the nonlinear parameters in `theta` (its linear entries are ignored), solve the
-    masked, column-scaled linear least-squares problem for the linear parameters, clip them to
-    `[lower, upper]`, and return the full parameter vector and its RMS [N].
-
-    The regressors split into parameter-free columns F (`model.basis`) and parameter-dependent
-    ones Z (`model.hysteresis`). Everything that involves only F (its Gram matrix, its
-    inverse, F'y) does not depend on the particle, so under `vmap` over particles it is computed
-    once per condition; each particle only adds the dot products of its Z and b columns and a
-    k x k Schur-complement solve (k = 1 or 0 for every built-in model).
-    """
-    x, xdot, dt, force, mask = data
-    m = mask[:, None]
-    # Particle-free part, H = [F, force]: under vmap over particles its Gram matrix, the column
-    # scales of F and the inverse of the scaled F'F are computed once per condition.
-    H = jnp.where(m, jnp.concatenate([model.basis(x, xdot), force[:, None]], axis=1), 0.0)
-    p = H.shape[1] - 1
-    HH = H.T @ H
-    FF = HH[:p, :p]
-    dF = jnp.sqrt(jnp.diag(FF))
-    dF = jnp.where(dF > 0, dF, 1.0)
-    Minv = jnp.linalg.inv(FF / jnp.outer(dF, dF) + 1e-12 * jnp.eye(p, dtype=FF.dtype))
-    # Per particle: one pass over the samples. Z is kept as (k, T) rows: a trailing size-1 axis
-    # (T, 1) makes XLA:CPU loop over it element by element (measured 5-10x slower).
-    Z, b = model.hysteresis(theta, x, xdot, dt)
-    k = Z.shape[1]
-    Z = jnp.where(mask[None, :], Z.T, 0.0)
-    b = jnp.where(mask, b, 0.0)
-    ZH = Z @ H  # (k, p+1)
-    bH = b @ H  # (p+1,)
-    ZZ = Z @ Z.T
-    Zb = Z @ b
-    # Gram quantities of A = [F, Z] against y = force - b
-    Fy = HH[:p, p] - bH[:p]
-    yy = HH[p, p] - 2.0 * bH[p] + b @ b
-    ZF = ZH[:, :p]
-    Zy = ZH[:, p] - Zb
-    G = jnp.block([[FF, ZF.T], [ZF, ZZ]]) if k else FF
-    g = jnp.concatenate([Fy, Zy]) if k else Fy
-    # column-scaled normal equations, solved by a Schur complement on the Z block
-    gF = Fy / dF
-    if k:
-        dZ = jnp.sqrt(jnp.diag(ZZ))
-        dZ = jnp.where(dZ > 0, dZ, 1.0)
-        FZ = ZF.T / jnp.outer(dF, dZ)
-        S = ZZ / jnp.outer(dZ, dZ) - FZ.T @ Minv @ FZ
-        r = Zy / dZ - FZ.T @ (Minv @ gF)
-        if k == 1:
-            wz = jnp.where(S[0, 0] > 1e-12, r / S[0, 0], 0.0).reshape(1)
-        else:
-            wz = jnp.linalg.solve(S + 1e-12 * jnp.eye(k, dtype=S.dtype), r)
-        w = jnp.concatenate([(Minv @ (gF - FZ @ wz)) / dF, wz / dZ])
-    else:
-        w = (Minv @ gF) / dF
-    li = model.linear_index
-    w = jnp.clip(w, lower[li], upper[li])
-    full = theta.at[li].set(w)
-    return full, rms_from_gram(w, G, g, yy, jnp.sum(mask))
-
-
-def _log_flags(model: AbstractModel, lower) -> np.ndarray:
-    """Which parameters the separable swarm searches in log space: those the model lists in
-    `log_params` whose lower bound is positive (a wide positive range, e.g. 1..1000 s/m)."""
-    lo = np.asarray(lower)
-    names = getattr(model, "log_params", ())
-    return np.array([(n in names) and bool(lo[i] > 0) for i, n in enumerate(model.param_names)])
-
-
-class SeparableObjective(AbstractObjective):
-    """Variable-projection objective: positions hold only the nonlinear parameters."""
-
-    model: AbstractModel
-    lower: Float[Array, " P"]
-    upper: Float[Array, " P"]
-    log_mask: tuple[bool, ...] = eqx.field(static=True, default=())
-
-    def _full(self, position):
-        nl = self.model.nonlinear_index
-        base = 0.5 * (self.lower + self.upper)
-        logs = np.asarray(self.log_mask or (False,) * len(nl), bool)
-        return base.at[nl].set(jnp.where(logs, jnp.exp(position), position))
-
-    def __call__(self, position, data):
-        return solve_linear(self.model, self._full(position), data, self.lower, self.upper)[1]
-
-    def to_params(self, position, data):
-        return solve_linear(self.model, self._full(position), data, self.lower, self.upper)[0]
-
-
 # ------------------------------------------------------------------------------ swarm
 
 
@@ -349,6 +232,166 @@ def _sanitize(f):
     return jnp.where(jnp.isnan(f), jnp.inf, f)
 
 
+def _evaluate(objective: AbstractObjective, position: Array, data: Any) -> Array:
+    """Fitness of every particle of every condition, (C, N), NaN mapped to `inf`."""
+    vmapped = jax.vmap(jax.vmap(objective, in_axes=(0, None)), in_axes=(0, 0))
+    return _sanitize(vmapped(position, data).astype(position.dtype))
+
+
+def init(
+    objective: AbstractObjective,
+    lower: Float[Array, "C D"],
+    upper: Float[Array, "C D"],
+    data: Any,
+    keys: Any,
+    *,
+    n_particles: int,
+    max_generations: int,
+) -> SwarmState:
+    """The initial state of C swarms: N particles uniform in each condition's box, zero
+    velocity, evaluated once (generation 0).
+
+    **Arguments:** `objective`, `lower`, `upper` (C, D), `data` (leading axis C) as for
+    :func:`swarm`; `keys` (C,) one PRNG key per condition; `n_particles` N and
+    `max_generations` G (static: the history has G + 1 entries). Pure and jittable.
+    """
+    C, D = lower.shape
+    N, G = n_particles, max_generations
+
+    def init_one(k, lo, hi):
+        u = jax.random.uniform(jax.random.fold_in(k, 0), (N, D), dtype=lo.dtype)
+        return lo + u * (hi - lo)
+
+    pos = jax.vmap(init_one)(keys, lower, upper)
+    fit = _evaluate(objective, pos, data)
+    g = jnp.argmin(fit, axis=1)
+    gpos = jnp.take_along_axis(pos, g[:, None, None], axis=1)[:, 0]
+    gfit = jnp.min(fit, axis=1)
+    return SwarmState(
+        position=pos, velocity=jnp.zeros_like(pos), fitness=fit,
+        pbest_position=pos, pbest_fitness=fit, gbest_position=gpos, gbest_fitness=gfit,
+        generation=jnp.zeros((C,), jnp.int32), done=jnp.zeros((C,), bool),
+        by_criterion=jnp.zeros((C,), bool), lambda_inv=jnp.zeros((C,), pos.dtype),
+        improvements=jnp.zeros((C, MAX_WINDOW), pos.dtype),
+        history=jnp.broadcast_to(gfit[:, None], (C, G + 1)), keys=keys,
+    )
+
+
+def ask(
+    state: SwarmState, lower: Float[Array, "C D"], upper: Float[Array, "C D"], params: PSOParams
+) -> tuple[Float[Array, "C N D"], Float[Array, "C N D"]]:
+    """The next positions and velocities (eq 9-10, absorbing walls), `(x, v)` each (C, N, D).
+
+    $c_1, c_2$ are drawn per condition, particle and dimension from the condition's key and
+    the generation number, so a condition's trajectory depends on its own key only.
+    """
+    pos = state.position
+    N, D = pos.shape[1], pos.shape[2]
+    gen = state.generation + 1  # generation being computed, per condition
+
+    def draws(k, t):
+        # r1 and r2 are the two 16-bit halves of one random 32-bit word: half the threefry
+        # hashes of two separate draws (the draws cost ~25 % of a float32 tanh generation
+        # otherwise), resolution 2^-16 on U[0, 1).
+        bits = jax.random.bits(jax.random.fold_in(k, t), (N, D), jnp.uint32)
+        scale = jnp.asarray(2.0**-16, pos.dtype)
+        return ((bits & 0xFFFF).astype(pos.dtype) * scale,
+                (bits >> 16).astype(pos.dtype) * scale)
+
+    r1, r2 = jax.vmap(draws)(state.keys, gen)
+    c1 = params.c1_max * r1
+    c2 = params.c2_max * r2
+    vmax = (params.velocity_clamp * (upper - lower))[:, None, :]
+    v = (params.inertia * state.velocity
+         + c1 * (state.gbest_position[:, None, :] - pos)
+         + c2 * (state.pbest_position - pos))
+    v = jnp.clip(v, -vmax, vmax)
+    x = pos + v
+    lo, hi = lower[:, None, :], upper[:, None, :]
+    out = (x < lo) | (x > hi)
+    x = jnp.clip(x, lo, hi)
+    return x, jnp.where(out, 0.0, v)
+
+
+def tell(
+    state: SwarmState,
+    x: Float[Array, "C N D"],
+    v: Float[Array, "C N D"],
+    f: Float[Array, "C N"],
+    params: PSOParams,
+    *,
+    max_generations: int,
+) -> SwarmState:
+    """Take the fitness `f` of positions `x` (velocities `v`): update the personal and group
+    bests, the statistical stop and the history. Conditions already stopped stay frozen."""
+    C = f.shape[0]
+    G = max_generations
+    W = params.window
+    neglog = -jnp.log(params.confidence)
+    s = state
+    gen = s.generation + 1
+    better = f < s.pbest_fitness
+    pb_pos = jnp.where(better[..., None], x, s.pbest_position)
+    pb_fit = jnp.where(better, f, s.pbest_fitness)
+    j = jnp.argmin(pb_fit, axis=1)
+    cand_fit = jnp.min(pb_fit, axis=1)
+    cand_pos = jnp.take_along_axis(pb_pos, j[:, None, None], axis=1)[:, 0]
+    gb = cand_fit < s.gbest_fitness
+    g_fit = jnp.where(gb, cand_fit, s.gbest_fitness)
+    g_pos = jnp.where(gb[:, None], cand_pos, s.gbest_position)
+    # statistical stop: improvements ring buffer
+    imp = jnp.where(jnp.isfinite(s.gbest_fitness), s.gbest_fitness - g_fit, 0.0)
+    imp = jnp.where(jnp.isfinite(imp), imp, 0.0)
+    slot = (gen - 1) % MAX_WINDOW
+    imps = s.improvements.at[jnp.arange(C), slot].set(imp)
+    # running mean improvement per generation since the start: lambda^-1 estimate
+    lam = s.lambda_inv + (imp - s.lambda_inv) / gen
+    # mean over the last W generations (slots gen-W .. gen-1)
+    ages = (slot[:, None] - jnp.arange(MAX_WINDOW)[None, :]) % MAX_WINDOW
+    recent = jnp.sum(jnp.where(ages < W, imps, 0.0), axis=1) / W
+    eligible = (gen >= jnp.maximum(params.min_generations, W)) & params.criterion
+    stop_crit = eligible & (recent <= neglog * lam)
+    stop_cap = gen >= G
+    new_done = stop_crit | stop_cap
+    hist = s.history.at[jnp.arange(C), jnp.minimum(gen, G)].set(g_fit)
+    # after stopping, the rest of the history holds the final best
+    hist = jnp.where(
+        new_done[:, None] & (jnp.arange(G + 1)[None, :] > gen[:, None]), g_fit[:, None], hist
+    )
+    new = SwarmState(
+        position=x, velocity=v, fitness=f, pbest_position=pb_pos, pbest_fitness=pb_fit,
+        gbest_position=g_pos, gbest_fitness=g_fit, generation=gen, done=new_done,
+        by_criterion=stop_crit, lambda_inv=lam, improvements=imps, history=hist, keys=s.keys,
+    )
+    frozen = s.done
+
+    def keep(old, nw):
+        if not isinstance(old, jax.Array) or old.ndim == 0 or old.shape[0] != C:
+            return nw
+        if jnp.issubdtype(old.dtype, jax.dtypes.prng_key):
+            return nw
+        return jnp.where(frozen.reshape((C,) + (1,) * (old.ndim - 1)), old, nw)
+
+    return jax.tree.map(keep, s, new)
+
+
+def step(
+    objective: AbstractObjective,
+    state: SwarmState,
+    lower: Float[Array, "C D"],
+    upper: Float[Array, "C D"],
+    data: Any,
+    params: PSOParams,
+    *,
+    max_generations: int,
+) -> SwarmState:
+    """One generation of every condition: :func:`ask`, evaluate, :func:`tell`. Pure and
+    jittable; `params` must be in the swarm's float dtype (see :func:`swarm`)."""
+    x, v = ask(state, lower, upper, params)
+    f = _evaluate(objective, x, data)
+    return tell(state, x, v, f, params, max_generations=max_generations)
+
+
 @eqx.filter_jit
 def _swarm(
     objective: AbstractObjective,
@@ -361,122 +404,24 @@ def _swarm(
     max_generations: int,
     callback: Callable | None,
 ) -> SwarmResult:
-    C, D = lower.shape
-    N = n_particles
     G = max_generations
-    span = upper - lower
     # hyperparameters in the swarm's dtype, so a float32 swarm is not promoted to float64
     params = jax.tree.map(
         lambda a: a.astype(lower.dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, params)
-    vmapped = jax.vmap(jax.vmap(objective, in_axes=(0, None)), in_axes=(0, 0))
+    state = init(objective, lower, upper, data, keys, n_particles=n_particles,
+                 max_generations=G)
 
-    def evaluate(x, data):
-        return vmapped(x, data).astype(lower.dtype)
-
-    def init_one(k, lo, hi):
-        u = jax.random.uniform(jax.random.fold_in(k, 0), (N, D), dtype=lo.dtype)
-        return lo + u * (hi - lo)
-
-    pos = jax.vmap(init_one)(keys, lower, upper)
-    fit = _sanitize(evaluate(pos, data))
-    g = jnp.argmin(fit, axis=1)
-    gpos = jnp.take_along_axis(pos, g[:, None, None], axis=1)[:, 0]
-    gfit = jnp.min(fit, axis=1)
-    hist = jnp.broadcast_to(gfit[:, None], (C, G + 1))
-    state = SwarmState(
-        position=pos, velocity=jnp.zeros_like(pos), fitness=fit,
-        pbest_position=pos, pbest_fitness=fit, gbest_position=gpos, gbest_fitness=gfit,
-        generation=jnp.zeros((C,), jnp.int32), done=jnp.zeros((C,), bool),
-        by_criterion=jnp.zeros((C,), bool), lambda_inv=jnp.zeros((C,), pos.dtype),
-        improvements=jnp.zeros((C, MAX_WINDOW), pos.dtype), history=hist, keys=keys,
-    )
-    W = params.window
-    neglog = -jnp.log(params.confidence)
-
-    def cond(s: SwarmState):
-        return jnp.any(~s.done)
-
-    def step(s: SwarmState) -> SwarmState:
-        gen = s.generation + 1  # generation being computed, per condition
-
-        def draws(k, t):
-            # r1 and r2 are the two 16-bit halves of one random 32-bit word: half the
-            # threefry hashes of two separate draws (the draws cost ~25 % of a float32 tanh
-            # generation otherwise), resolution 2^-16 on U[0, 1).
-            bits = jax.random.bits(jax.random.fold_in(k, t), (N, D), jnp.uint32)
-            scale = jnp.asarray(2.0**-16, pos.dtype)
-            return ((bits & 0xFFFF).astype(pos.dtype) * scale,
-                    (bits >> 16).astype(pos.dtype) * scale)
-
-        r1, r2 = jax.vmap(draws)(s.keys, gen)
-        c1 = params.c1_max * r1
-        c2 = params.c2_max * r2
-        vmax = (params.velocity_clamp * span)[:, None, :]
-        v = (params.inertia * s.velocity
-             + c1 * (s.gbest_position[:, None, :] - s.position)
-             + c2 * (s.pbest_position - s.position))
-        v = jnp.clip(v, -vmax, vmax)
-        x = s.position + v
-        lo, hi = lower[:, None, :], upper[:, None, :]
-        out = (x < lo) | (x > hi)
-        x = jnp.clip(x, lo, hi)
-        v = jnp.where(out, 0.0, v)
-        f = _sanitize(evaluate(x, data))
-        better = f < s.pbest_fitness
-        pb_pos = jnp.where(better[..., None], x, s.pbest_position)
-        pb_fit = jnp.where(better, f, s.pbest_fitness)
-        j = jnp.argmin(pb_fit, axis=1)
-        cand_fit = jnp.min(pb_fit, axis=1)
-        cand_pos = jnp.take_along_axis(pb_pos, j[:, None, None], axis=1)[:, 0]
-        gb = cand_fit < s.gbest_fitness
-        g_fit = jnp.where(gb, cand_fit, s.gbest_fitness)
-        g_pos = jnp.where(gb[:, None], cand_pos, s.gbest_position)
-        # statistical stop: improvements ring buffer, lambda^-1 from the first W generations
-        imp = jnp.where(jnp.isfinite(s.gbest_fitness), s.gbest_fitness - g_fit, 0.0)
-        imp = jnp.where(jnp.isfinite(imp), imp, 0.0)
-        slot = (gen - 1) % MAX_WINDOW
-        imps = s.improvements.at[jnp.arange(C), slot].set(imp)
-        # running mean improvement per generation since the start: lambda^-1 estimate
-        lam = s.lambda_inv + (imp - s.lambda_inv) / gen
-        # mean over the last W generations (slots gen-W .. gen-1)
-        ages = (slot[:, None] - jnp.arange(MAX_WINDOW)[None, :]) % MAX_WINDOW
-        recent = jnp.sum(jnp.where(ages < W, imps, 0.0), axis=1) / W
-        eligible = (gen >= jnp.maximum(params.min_generations, W)) & params.criterion
-        stop_crit = eligible & (recent <= neglog * lam)
-        stop_cap = gen >= G
-        new_done = stop_crit | stop_cap
-        hist = s.history.at[jnp.arange(C), jnp.minimum(gen, G)].set(g_fit)
-        # after stopping, the rest of the history holds the final best
-        hist = jnp.where(
-            new_done[:, None] & (jnp.arange(G + 1)[None, :] > gen[:, None]), g_fit[:, None], hist
-        )
-        new = SwarmState(
-            position=x, velocity=v, fitness=f, pbest_position=pb_pos, pbest_fitness=pb_fit,
-            gbest_position=g_pos, gbest_fitness=g_fit, generation=gen, done=new_done,
-            by_criterion=stop_crit, lambda_inv=lam, improvements=imps, history=hist, keys=s.keys,
-        )
-        frozen = s.done
-
-        def keep(old, nw):
-            if not isinstance(old, jax.Array) or old.ndim == 0 or old.shape[0] != C:
-                return nw
-            if jnp.issubdtype(old.dtype, jax.dtypes.prng_key):
-                return nw
-            return jnp.where(frozen.reshape((C,) + (1,) * (old.ndim - 1)), old, nw)
-
-        out_state = jax.tree.map(keep, s, new)
+    def body(s: SwarmState) -> SwarmState:
+        s = step(objective, s, lower, upper, data, params, max_generations=G)
         if callback is not None:
-            jax.debug.callback(
-                callback, out_state.generation, out_state.done, out_state.gbest_fitness,
-                ordered=True,
-            )
-        return out_state
+            jax.debug.callback(callback, s.generation, s.done, s.gbest_fitness, ordered=True)
+        return s
 
-    final = jax.lax.while_loop(cond, step, state)
+    final = jax.lax.while_loop(lambda s: jnp.any(~s.done), body, state)
     return SwarmResult(
         position=final.gbest_position, fitness=final.gbest_fitness,
         generations=final.generation, stopped_by_criterion=final.by_criterion,
-        history=final.history, lambda_inv=final.lambda_inv, n_particles=N,
+        history=final.history, lambda_inv=final.lambda_inv, n_particles=n_particles,
     )
 
 
@@ -529,13 +474,7 @@ def swarm(
     D = lower.shape[-1]
     lower = jnp.broadcast_to(lower, (C, D))
     upper = jnp.broadcast_to(upper, (C, D))
-    lo_np, hi_np = np.asarray(lower), np.asarray(upper)
-    if not (np.all(np.isfinite(lo_np)) and np.all(np.isfinite(hi_np))):
-        raise InputError("swarm bounds must be finite")
-    if np.any(lo_np > hi_np):
-        i = np.argwhere(lo_np > hi_np)[0]
-        raise InputError(f"swarm bounds inverted in dimension {i[-1]}: "
-                         f"lower {lo_np[tuple(i)]} > upper {hi_np[tuple(i)]}")
+    check_box(lower, upper, what="swarm bounds")
     if n_particles < 1 or max_generations < 1:
         raise InputError("n_particles and max_generations must be at least 1")
     keys = _keys_for(key, C)
@@ -563,184 +502,26 @@ def _cast_floats(tree, dtype):
     return jax.tree.map(cast, tree)
 
 
-# ------------------------------------------------------------------------------ model swarms
+# Names that lived here before the swarm engine was separated from the model glue; kept
+# importable from `mrjax.pso` for one release (see the README).
+_MOVED = {
+    "fit_swarm": "mrjax.fitting", "ModelSwarm": "mrjax.fitting",
+    "FullObjective": "mrjax.objective", "SeparableObjective": "mrjax.objective",
+    "solve_linear": "mrjax.objective", "condition_data": "mrjax.objective",
+    "check_bounds": "mrjax.models", "box_corners": "mrjax.models",
+    "resolve_model": "mrjax.models", "SWARM_MAX_SUBSTEPS": "mrjax.models",
+}
 
 
-class ModelSwarm(eqx.Module):
-    """Result of :func:`fit_swarm`: the swarm outcome in model parameters.
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
 
-    **Fields:** `theta` (C, P) best parameters (all of them, also in separable mode);
-    `rms` (C,) [N]; `swarm` the underlying :class:`SwarmResult`; `mode` static.
-    """
-
-    theta: Float[Array, "C P"]
-    rms: Float[Array, " C"]
-    swarm: SwarmResult
-    mode: str = eqx.field(static=True)
-
-
-def check_bounds(model: AbstractModel, bounds) -> tuple[np.ndarray, np.ndarray]:
-    """Validate `(lower, upper)` for `model` (default `model.bounds`) and return float arrays.
-
-    Raises :class:`mrjax.InputError` naming the parameter for a wrong shape, a non-finite
-    value or lower > upper.
-    """
-    if bounds is None:
-        return model.bounds
-    try:
-        lo, hi = bounds
-    except (TypeError, ValueError):
-        raise InputError("bounds must be a pair (lower, upper)") from None
-    if isinstance(lo, dict) or isinstance(hi, dict):
-        for d in (lo, hi):
-            unknown = [k for k in d if k not in model.param_names] if isinstance(d, dict) else []
-            if unknown:
-                raise InputError(f"bounds name unknown parameter {unknown[0]!r} of model "
-                                 f"{model.name!r}; its parameters: {', '.join(model.param_names)}")
-        d_lo, d_hi = model.bounds
-        lo = np.array([lo.get(n, d_lo[i]) if isinstance(lo, dict) else lo[i]
-                       for i, n in enumerate(model.param_names)], float)
-        hi = np.array([hi.get(n, d_hi[i]) if isinstance(hi, dict) else hi[i]
-                       for i, n in enumerate(model.param_names)], float)
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    P = model.n_params
-    if lo.shape != (P,) or hi.shape != (P,):
-        raise InputError(
-            f"bounds for model {model.name!r} need {P} values each {list(model.param_names)}, "
-            f"got shapes {lo.shape} and {hi.shape}"
-        )
-    for i, n in enumerate(model.param_names):
-        if not (math.isfinite(lo[i]) and math.isfinite(hi[i])):
-            raise InputError(f"bounds of parameter {n!r} must be finite, got [{lo[i]}, {hi[i]}]")
-        if lo[i] > hi[i]:
-            raise InputError(f"bounds of parameter {n!r} are inverted: lower {lo[i]:g} > upper {hi[i]:g}")
-    return lo, hi
-
-
-#: Cap on the RK4 sub-steps the swarm uses for ODE models. The stiffest corner of a wide box
-#: can ask for hundreds; particles there are integrated less accurately (they typically diverge
-#: and score `inf`). The polish and every reported RMS use sub-steps resolved from the found
-#: parameters instead, uncapped.
-SWARM_MAX_SUBSTEPS = 8
-
-
-def box_corners(model: AbstractModel, lower: ArrayLike, upper: ArrayLike) -> np.ndarray:
-    """Corners of the box over the *nonlinear* parameters (linear ones at mid-range), (K, P).
-    The linear parameters never enter an ODE, so the stiffest point of a box is among these
-    for the monotone stiffness bounds of the built-in models."""
-    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
-    nl = model.nonlinear_index
-    mid = 0.5 * (lo + hi)
-    if nl.size == 0:
-        return mid[None]
-    bits = (np.arange(2 ** nl.size)[:, None] >> np.arange(nl.size)[None, :]) & 1
-    rows = np.repeat(mid[None], bits.shape[0], axis=0)
-    rows[:, nl] = np.where(bits, hi[nl], lo[nl])
-    return rows
-
-
-def resolve_model(
-    model: AbstractModel, rows: ArrayLike, batch: Batch, *, cap: int | None = None
-) -> AbstractModel:
-    """Fix the RK4 sub-step count of an ODE model on the host for parameters `rows` (N, P) on
-    `batch`: the stiffest row, the largest scored |velocity| and sample interval decide (see
-    `mrjax.models.choose_substeps`), optionally capped at `cap`. Static models and models with
-    explicit `substeps` pass through unchanged.
-    """
-    if not model.dynamic or model.substeps is not None:
-        return model
-    mask = np.asarray(batch.mask)
-    v = np.where(mask, np.asarray(batch.xdot), 0.0)
-    dt = np.where(mask, np.asarray(batch.dt), 0.0)
-    n = model.resolve_substeps(np.atleast_2d(np.asarray(rows, float)), v, dt)
-    return model.with_substeps(n if cap is None else min(n, int(cap)))
-
-
-def fit_swarm(
-    model: AbstractModel,
-    batch: Batch,
-    *,
-    key: PRNGKeyArray,
-    mode: Literal["separable", "full"] = "separable",
-    bounds: tuple[ArrayLike, ArrayLike] | None = None,
-    mask: ArrayLike | None = None,
-    params: PSOParams | None = None,
-    n_particles: int = 50,
-    max_generations: int = 200,
-    callback: Callable | None = None,
-    dtype: Any = None,
-) -> ModelSwarm:
-    """Identify `model` on every condition of `batch` with the batched swarm.
-
-    **Arguments:**
-
-    - `model`: an `AbstractModel` (see `mrjax.models.get`).
-    - `batch`: the conditions (`mrjax.data.Batch`).
-    - `key`: PRNG key (see :func:`swarm`).
-    - `mode`: `"separable"` (variable projection over the nonlinear parameters; default) or
-        `"full"` (the paper's swarm over every parameter).
-    - `bounds`: `(lower, upper)` (P,) in SI units, default `model.bounds`.
-    - `mask`: (C, T) samples to score, default `batch.mask` (see `objective.fit_mask`).
-    - `params`, `n_particles`, `max_generations`, `callback`: see :func:`swarm`.
-    - `dtype`: float dtype of the swarm (see :func:`swarm`), e.g. `"float32"`. The returned
-        `theta` and `rms` are always recomputed in the default float (float64) from the best
-        swarm positions, so only the search runs in the lower precision.
-
-    **Returns:** a :class:`ModelSwarm` with the full parameter vectors and their RMS [N].
-    """
-    lo, hi = check_bounds(model, bounds)
-    model = resolve_model(model, box_corners(model, lo, hi), batch, cap=SWARM_MAX_SUBSTEPS)
-    if params is None:
-        params = default_params(mode)
-    data = condition_data(batch, mask)
-    lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
-    if mode == "full":
-        obj: AbstractObjective = FullObjective(model)
-        s_lo, s_hi = lo_j, hi_j
-    elif mode == "separable":
-        nl = model.nonlinear_index
-        obj = SeparableObjective(model, lo_j, hi_j, tuple(bool(v) for v in _log_flags(model, lo)[nl]))
-        if nl.size == 0:
-            # fully linear model: one exact solve, no swarm needed; run 1 generation anyway
-            s_lo, s_hi = jnp.zeros((1,)), jnp.zeros((1,))
-            obj = _LinearOnly(model, lo_j, hi_j)
-        else:
-            logs = _log_flags(model, lo)[nl]
-            s_lo = jnp.asarray(np.where(logs, np.log(np.where(logs, lo[nl], 1.0)), lo[nl]))
-            s_hi = jnp.asarray(np.where(logs, np.log(np.where(logs, hi[nl], 1.0)), hi[nl]))
-    else:
-        raise InputError(f"swarm mode must be 'separable' or 'full', got {mode!r}")
-    res = swarm(obj, s_lo, s_hi, data, key=key, params=params, n_particles=n_particles,
-                max_generations=max_generations, callback=callback, dtype=dtype)
-    if dtype is None or jnp.dtype(dtype) == s_lo.dtype:
-        theta = _to_params(obj, res.position, data)
-        return ModelSwarm(theta=theta, rms=res.fitness, swarm=res, mode=mode)
-    # low-precision swarm: parameters and RMS of its best positions in full precision
-    theta, rms = _to_params_rms(obj, res.position.astype(s_lo.dtype), data)
-    return ModelSwarm(theta=theta, rms=rms, swarm=res, mode=mode)
-
-
-class _LinearOnly(AbstractObjective):
-    """Separable objective of a model with no nonlinear parameter (Bingham)."""
-
-    model: AbstractModel
-    lower: Float[Array, " P"]
-    upper: Float[Array, " P"]
-
-    def __call__(self, position, data):
-        th = 0.5 * (self.lower + self.upper)
-        return solve_linear(self.model, th, data, self.lower, self.upper)[1]
-
-    def to_params(self, position, data):
-        th = 0.5 * (self.lower + self.upper)
-        return solve_linear(self.model, th, data, self.lower, self.upper)[0]
-
-
-@eqx.filter_jit
-def _to_params(obj, position, data):
-    return jax.vmap(obj.to_params)(position, data)
-
-
-@eqx.filter_jit
-def _to_params_rms(obj, position, data):
-    return jax.vmap(obj.to_params)(position, data), jax.vmap(obj)(position, data)
+        warnings.warn(f"mrjax.pso.{name} moved to {_MOVED[name]}.{name}", DeprecationWarning,
+                      stacklevel=2)
+        moved = getattr(importlib.import_module(_MOVED[name]), name)
+        if name != "resolve_model":
+            return moved
+        return lambda model, rows, batch, *, cap=None: moved(  # the old signature
+            model, rows, batch.xdot, batch.dt, batch.mask, cap=cap)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

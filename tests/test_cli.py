@@ -22,7 +22,7 @@ import pytest
 
 import mrjax
 from mrjax import InputError, cli
-from mrjax.data import paper_grid, paper_parameters
+from mrjax.data import paper_grid
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 UTFSM_FILES = ("2mm5Hz0A.txt", "2mm5Hz0x5A.txt", "2mm5Hz1A.txt")
@@ -110,51 +110,6 @@ def check_pngs(d: Path, names) -> None:
         assert data[:8] == PNG_MAGIC and len(data) > 2000, n
 
 
-class FakeGM:
-    """Stands in for `mrjax.generalize.GeneralizedModel` (the real one is tested elsewhere)."""
-
-    def __init__(self, scale):
-        self.scale = scale
-
-    @classmethod
-    def from_dict(cls, d):
-        if d.get("kind") != "fake":
-            raise InputError("not a generalized model block")
-        return cls(d["scale"])
-
-    def to_dict(self):
-        return {"kind": "fake", "scale": self.scale, "undefined": float("nan"),
-                "coefficients": np.array([1.0, 2.0])}
-
-    def params_at(self, currents):
-        return paper_parameters(np.asarray(currents))
-
-    def summary(self):
-        return f"fake laws, scale {self.scale}"
-
-    def predict(self, batch):
-        return self.scale * np.asarray(batch.force)
-
-    def evaluate(self, batch):
-        f, m = np.asarray(batch.force), np.asarray(batch.mask)
-        err = np.where(m, f - self.predict(batch), 0.0)
-        rms = np.sqrt((err**2).sum(1) / m.sum(1))
-        return {"rms": rms, "nrmse": rms / np.abs(np.where(m, f, 0)).max(1)}
-
-
-def fake_generalize_module(calls):
-    mod = types.ModuleType("mrjax.generalize")
-    mod.__spec__ = importlib.machinery.ModuleSpec("mrjax.generalize", None)
-    mod.GeneralizedModel = FakeGM
-
-    def generalize(result, batch, *, method, **kw):
-        calls.append((result.n_conditions, batch.n_conditions, method, kw))
-        return FakeGM(0.9)
-
-    mod.generalize = generalize
-    return mod
-
-
 # --------------------------------------------------------------------------------------------
 # Fixtures: two real fits, shared
 
@@ -172,14 +127,11 @@ def csv_file(grid, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def csv_run(csv_file, tmp_path_factory):
-    """`mrjax fit tests.csv --model kwok --generations 5 --generalize two-step` (fake laws)."""
+    """`mrjax fit tests.csv --model kwok --generations 5 --generalize two-step`."""
     out = tmp_path_factory.mktemp("fitcsv") / "out"
-    calls = []
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setitem(sys.modules, "mrjax.generalize", fake_generalize_module(calls))
-        code, stdout, stderr = run(["fit", csv_file, "--model", "kwok", "--generations", 5,
-                                    "--out", out, "--generalize", "two-step", "--seed", 3])
-    return types.SimpleNamespace(code=code, out=out, stdout=stdout, stderr=stderr, calls=calls)
+    code, stdout, stderr = run(["fit", csv_file, "--model", "kwok", "--generations", 5,
+                                "--out", out, "--generalize", "two-step", "--seed", 3])
+    return types.SimpleNamespace(code=code, out=out, stdout=stdout, stderr=stderr)
 
 
 @pytest.fixture(scope="module")
@@ -197,7 +149,7 @@ def utfsm_run(utfsm, tmp_path_factory):
 # mrjax fit
 
 
-def test_fit_csv_end_to_end(csv_run, grid):
+def test_fit_csv_end_to_end(csv_run, csv_file, grid):
     assert csv_run.code == 0, csv_run.stderr
     files = set(os.listdir(csv_run.out))
     assert files == {"fit.json", "fit.csv"} | FIT_PNGS  # no temporary leftovers either
@@ -217,10 +169,16 @@ def test_fit_csv_end_to_end(csv_run, grid):
     assert all(c["rms_N"] < 15.0 for c in conds)  # it did fit: noise is 5 N
     assert all(c["pso_rms_N"] >= c["rms_N"] - 1e-6 for c in conds)
 
-    # --generalize: the laws are stored (NaN -> null, arrays -> lists) and were fitted once
-    assert doc["generalized"] == {"kind": "fake", "scale": 0.9, "undefined": None,
-                                  "coefficients": [1.0, 2.0]}
-    assert csv_run.calls == [(4, 4, "two-step", {"seed": 3})]
+    # --generalize: the laws of the fitted parameters are stored, readable back
+    gen = doc["generalized"]
+    assert gen["method"] == "two-step" and list(gen["laws"]) == list(mrjax.models.get("kwok")
+                                                                     .param_names)
+    gm = mrjax.generalize.GeneralizedModel.from_dict(gen)
+    res = mrjax.generalize.generalize(mrjax.fit("kwok", mrjax.data.load_batch(csv_file),
+                                                generations=5, seed=3),
+                                      mrjax.data.load_batch(csv_file), method="two-step")
+    for n in gm.param_names:
+        assert gm.coefficients(n) == pytest.approx(res.coefficients(n), rel=1e-9, abs=1e-9)
 
     rows = list(csv.DictReader(io.StringIO((csv_run.out / "fit.csv").read_text())))
     assert [r["label"] for r in rows] == list(grid.labels)
@@ -228,7 +186,7 @@ def test_fit_csv_end_to_end(csv_run, grid):
 
     for lab in grid.labels:
         assert lab in csv_run.stdout
-    assert "median RMS" in csv_run.stdout and "fake laws, scale 0.9" in csv_run.stdout
+    assert "median RMS" in csv_run.stdout and "kwok generalized (two-step)" in csv_run.stdout
     stages = csv_run.stderr.splitlines()
     assert "mrjax: loading 1 file..." in stages
     assert "mrjax: fitting kwok on 4 conditions (pso+lm, separable swarm)..." in stages
@@ -259,8 +217,7 @@ def test_fit_utfsm_no_plots(utfsm_run):
 # mrjax predict
 
 
-def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "mrjax.generalize", fake_generalize_module([]))
+def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path):
     out = tmp_path / "pred"
     code, stdout, stderr = run(["predict", "--fit", csv_run.out / "fit.json", csv_file,
                                 "--out", out])
@@ -270,7 +227,8 @@ def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path, monkeypatch):
     check_pngs(out, ["predict_loops.png", "predict_rms_vs_current.png"])
     doc = json.loads((out / "predict.json").read_text())
     assert doc["model"] == "kwok" and len(doc["conditions"]) == 4
-    expect = FakeGM(0.9).evaluate(mrjax.data.load_batch(csv_file))
+    gm = mrjax.generalize.GeneralizedModel.from_json_file(csv_run.out / "fit.json")
+    expect = gm.evaluate(mrjax.data.load_batch(csv_file))
     got = [c["rms_N"] for c in doc["conditions"]]
     assert got == pytest.approx(expect["rms"].tolist())
     assert [c["nrmse"] for c in doc["conditions"]] == pytest.approx(expect["nrmse"].tolist())
@@ -296,10 +254,9 @@ def test_predict_needs_a_generalized_block(utfsm_run, utfsm, tmp_path):
 @pytest.mark.parametrize("content, needle", [
     ("{not json", "not valid JSON (line 1"),
     ("[1, 2]", "expected a JSON object"),
-    ('{"model": "kwok", "generalized": {"kind": "other"}}', "not a generalized model block"),
+    ('{"model": "kwok", "generalized": {"kind": "other"}}', "generalized model block lacks"),
 ])
-def test_predict_bad_fit_json(content, needle, csv_file, tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "mrjax.generalize", fake_generalize_module([]))
+def test_predict_bad_fit_json(content, needle, csv_file, tmp_path):
     fit_json = tmp_path / "fit.json"
     fit_json.write_text(content)
     code, _, err = run(["predict", "--fit", fit_json, csv_file, "--out", tmp_path / "p"])
@@ -403,7 +360,7 @@ def test_failure_during_fit_writes_nothing(exc, code, needle, csv_file, existing
     def boom(*a, **k):
         raise exc
 
-    monkeypatch.setattr(sys.modules["mrjax.fit"], "fit", boom)
+    monkeypatch.setattr("mrjax.cli._fit.fit", boom)  # the function the command calls
     before = snapshot(existing_out)
     new = existing_out.parent / "new"
     for out in (existing_out, new):
@@ -445,13 +402,13 @@ def test_compilation_cache_setting(tmp_path, monkeypatch):
     monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
     try:
         monkeypatch.setenv("MRJAX_CACHE_DIR", "off")
-        assert cli._enable_compilation_cache() is None
+        assert cli.enable_compilation_cache() is None
         target = tmp_path / "cache" / "xla"
         monkeypatch.setenv("MRJAX_CACHE_DIR", str(target))
-        assert cli._enable_compilation_cache() == str(target)
+        assert cli.enable_compilation_cache() == str(target)
         assert target.is_dir() and jax.config.jax_compilation_cache_dir == str(target)
         monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", "/somewhere/else")
-        assert cli._enable_compilation_cache() == "/somewhere/else"
+        assert cli.enable_compilation_cache() == "/somewhere/else"
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
 
@@ -475,14 +432,6 @@ def test_fit_float32_swarm(csv_file, tmp_path):
     assert code == 0, err
     doc = json.loads((out / "fit.json").read_text())
     assert all(math.isfinite(c["rms_N"]) for c in doc["conditions"])
-
-
-def test_generalize_unavailable_fails_before_fitting(csv_file, tmp_path, monkeypatch):
-    real = cli._module
-    monkeypatch.setattr(cli, "_module", lambda n: None if n == "mrjax.generalize" else real(n))
-    code, _, err = run(["fit", csv_file, "--model", "kwok", "--generalize", "joint",
-                        "--out", tmp_path / "o"])
-    assert code == 2 and "not available" in one_error_line(err) and "loading" not in err
 
 
 def test_console_script_missing_file(tmp_path):
@@ -518,13 +467,6 @@ def test_models_lists_every_model():
     assert kwok_rows["beta"][1] == "s/m" and float(kwok_rows["beta"][3]) == hi[3]
     code, md, _ = run(["models", "--markdown"])
     assert code == 0 and "### kwok" in md and "|---|---|---:|---:|---|" in md
-
-
-def test_reproduce_not_yet_available(monkeypatch):
-    real = cli._module
-    monkeypatch.setattr(cli, "_module", lambda n: None if n == "mrjax.reproduce" else real(n))
-    code, out, _ = run(["reproduce", "--quick"])
-    assert code == 0 and "not yet available" in out
 
 
 def test_reproduce_delegates(monkeypatch, tmp_path):

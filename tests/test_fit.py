@@ -77,7 +77,7 @@ def test_lm_alone_never_beats_the_swarm(grid, grid_fit):
     same optimum (honest result; the swarm's value shows on Bouc-Wen and real data, see
     benchmarks/); it must never do better than swarm + polish."""
     lm = mrjax.fit("kwok", grid, method="lm", seed=0)
-    assert lm.swarm == "none" and np.all(lm.generations == -1)
+    assert lm.swarm_mode == "none" and np.all(lm.generations == -1)
     assert np.all(np.isnan(lm.pso_rms))
     print(f"\nLM alone from the default start: median RMS {np.median(lm.rms):.2f} N, "
           f"worst {lm.rms.max():.2f} N vs swarm+LM worst {grid_fit.rms.max():.2f} N")
@@ -108,7 +108,7 @@ def test_same_seed_same_result(grid):
 
 def test_full_swarm_and_fixed_generations(grid):
     sub = grid.subset([0, 35])
-    res = mrjax.fit("kwok", sub, method="pso", swarm="full", generations=7, seed=0,
+    res = mrjax.fit("kwok", sub, method="pso", swarm_mode="full", generations=7, seed=0,
                     uncertainty=False)
     assert np.all(res.generations == 7) and not res.stopped_by_criterion.any()
     assert res.history.shape == (2, 8)
@@ -127,11 +127,11 @@ def test_float32_swarm_reaches_the_float64_optimum(grid, grid_fit):
 def test_restarts_keep_the_best_swarm_per_condition(grid):
     """`restarts=K`: K independent swarms per condition in one batch (copy j of condition i at
     row j*C + i of the repeated batch, same key); the best (lowest RMS) is kept."""
-    from mrjax.pso import fit_swarm
+    from mrjax.fitting import fit_swarm
 
     sub = grid.subset([0, 20, 35])
     K, C = 3, sub.n_conditions
-    res = mrjax.fit("kwok", sub, method="pso", swarm="full", seed=4, restarts=K,
+    res = mrjax.fit("kwok", sub, method="pso", swarm_mode="full", seed=4, restarts=K,
                     max_generations=15, uncertainty=False)
     rep = fit_swarm(models.get("kwok"), sub.subset(np.tile(np.arange(C), K)),
                     key=jax.random.key(4), mode="full", max_generations=15)
@@ -151,7 +151,7 @@ def test_bad_options(grid):
     with pytest.raises(mrjax.InputError, match="method"):
         mrjax.fit("kwok", sub, method="newton")
     with pytest.raises(mrjax.InputError, match="swarm"):
-        mrjax.fit("kwok", sub, swarm="ring")
+        mrjax.fit("kwok", sub, swarm_mode="ring")
     with pytest.raises(mrjax.InputError, match="unknown model"):
         mrjax.fit("spring", sub)
 

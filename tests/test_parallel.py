@@ -72,7 +72,7 @@ _SCRIPT = textwrap.dedent("""
                        sample_rate=500.0)
     out = {}
     for name, kw in (("pso+lm", dict(method="pso+lm", polish_steps=20, uncertainty=False)),
-                     ("pso-full", dict(method="pso", swarm="full", generations=8,
+                     ("pso-full", dict(method="pso", swarm_mode="full", generations=8,
                                        uncertainty=False))):
         one = mrjax.fit("kwok", batch, seed=3, **kw)
         two = mrjax.fit("kwok", batch, seed=3, devices="all", **kw)

@@ -11,17 +11,10 @@ import pytest
 import mrjax
 from mrjax import models
 from mrjax.data import paper_grid, paper_truth
-from mrjax.objective import rms_per_condition
-from mrjax.pso import (
-    AbstractObjective,
-    PSOParams,
-    box_corners,
-    check_bounds,
-    condition_data,
-    fit_swarm,
-    stability,
-    swarm,
-)
+from mrjax.fitting import fit_swarm
+from mrjax.models import box_corners, check_bounds
+from mrjax.objective import condition_data, rms_per_condition
+from mrjax.pso import AbstractObjective, PSOParams, stability, swarm
 
 
 @pytest.fixture(scope="module")
@@ -54,10 +47,10 @@ class Sphere(AbstractObjective):
 def test_separable_reaches_truth_and_stops_by_criterion(grid, truth_rms):
     res = fit_swarm(models.get("kwok"), grid, key=jax.random.key(0), mode="separable")
     ratio = np.asarray(res.rms) / truth_rms
-    gens = np.asarray(res.swarm.generations)
+    gens = np.asarray(res.result.generations)
     print(f"\nseparable tanh: RMS/truth max {ratio.max():.5f} median {np.median(ratio):.5f}; "
           f"generations min/median/max {gens.min()}/{np.median(gens)}/{gens.max()}")
-    assert np.all(np.asarray(res.swarm.stopped_by_criterion))
+    assert np.all(np.asarray(res.result.stopped_by_criterion))
     assert ratio.max() <= 1.005
     # all parameters are reported, linear ones solved exactly and inside the bounds
     lo, hi = models.get("kwok").bounds
@@ -80,12 +73,12 @@ def test_full_mode_paper_box_tanh_beats_bouc_wen(grid, truth_rms):
         lo, hi = (jnp.asarray(b) for b in PAPER_BOX[name])
         res = fit_swarm(m, grid, key=jax.random.key(1), mode="full", bounds=(lo, hi),
                         max_generations=150)
-        gens = np.asarray(res.swarm.generations)
+        gens = np.asarray(res.result.generations)
         rms = np.asarray(res.rms)
         print(f"\nfull {name}, paper box: generations min/median/mean/max {gens.min()}/"
               f"{np.median(gens)}/{gens.mean():.1f}/{gens.max()}, median RMS {np.median(rms):.1f} N "
               f"(truth {np.median(truth_rms):.1f} N)")
-        assert np.all(np.isfinite(rms)) and np.all(np.asarray(res.swarm.stopped_by_criterion))
+        assert np.all(np.isfinite(rms)) and np.all(np.asarray(res.result.stopped_by_criterion))
         assert 10 <= np.median(gens) <= 40
         out[name] = np.median(rms)
     assert out["kwok"] < 0.8 * out["bouc_wen"]
@@ -107,7 +100,7 @@ def test_determinism(small):
     m = models.get("kwok")
     a = fit_swarm(m, small, key=jax.random.key(3), mode="full", max_generations=20)
     b = fit_swarm(m, small, key=jax.random.key(3), mode="full", max_generations=20)
-    assert np.array_equal(a.theta, b.theta) and np.array_equal(a.swarm.history, b.swarm.history)
+    assert np.array_equal(a.theta, b.theta) and np.array_equal(a.result.history, b.result.history)
     c = fit_swarm(m, small, key=jax.random.key(4), mode="full", max_generations=20)
     assert not np.array_equal(a.theta, c.theta)
 
@@ -118,9 +111,9 @@ def test_batch_equals_per_condition_runs(small):
     whole = fit_swarm(m, small, key=keys, mode="full", max_generations=40)
     for i in range(small.n_conditions):
         one = fit_swarm(m, small.subset([i]), key=keys[i:i + 1], mode="full", max_generations=40)
-        assert int(one.swarm.generations[0]) == int(whole.swarm.generations[i])
+        assert int(one.result.generations[0]) == int(whole.result.generations[i])
         np.testing.assert_allclose(one.theta[0], whole.theta[i], rtol=1e-9)
-        np.testing.assert_allclose(one.swarm.history[0], whole.swarm.history[i], rtol=1e-9)
+        np.testing.assert_allclose(one.result.history[0], whole.result.history[i], rtol=1e-9)
 
 
 def test_frozen_condition_ignores_others():
@@ -171,8 +164,8 @@ def test_statistical_stop_rule_by_hand():
 def test_fixed_generation_mode_and_cap(small):
     res = fit_swarm(models.get("kwok"), small, key=jax.random.key(8), mode="separable",
                     params=PSOParams(criterion=False), max_generations=12)
-    assert np.all(np.asarray(res.swarm.generations) == 12)
-    assert not np.any(np.asarray(res.swarm.stopped_by_criterion))
+    assert np.all(np.asarray(res.result.generations) == 12)
+    assert not np.any(np.asarray(res.result.stopped_by_criterion))
 
 
 def test_hyperparameters_do_not_recompile():
@@ -210,7 +203,7 @@ def test_bounds_respected_and_nan_particles_harmless(small):
     th = np.asarray(res.theta)
     assert np.all(th >= lo) and np.all(th <= hi)
     assert np.all(np.isfinite(np.asarray(res.rms)))
-    assert np.all(np.isfinite(np.asarray(res.swarm.history)))
+    assert np.all(np.isfinite(np.asarray(res.result.history)))
 
 
 def test_stability_eigenvalues_by_hand():

@@ -9,7 +9,7 @@ import pytest
 
 import mrjax
 from mrjax import data, models, objective
-from mrjax.pso import resolve_model as _resolve_model
+from mrjax.models import resolve_model
 from mrjax.refine import Polished, Uncertainty, polish, uncertainty
 
 KWOK = models.get("kwok")
@@ -144,7 +144,7 @@ def test_input_errors(grid):
     with pytest.raises(mrjax.InputError, match="not finite"):
         polish(KWOK, np.where(np.arange(6) == 2, np.nan, truth), batch)
     lo, hi = KWOK.bounds
-    with pytest.raises(mrjax.InputError, match="lower > upper"):
+    with pytest.raises(mrjax.InputError, match=r"inverted: lower \S+ > upper"):
         polish(KWOK, truth, batch, lower=hi, upper=lo)
     with pytest.raises(mrjax.InputError, match="unknown"):
         polish(KWOK, truth, batch, free=["c", "nope"])
@@ -249,8 +249,8 @@ def test_substeps_resolved_on_host(bw_batch):
     auto = models.get("bouc_wen")
     lo, hi = auto.bounds
     rows = np.vstack([lo, hi, BW_TRUTH])
-    resolved = _resolve_model(auto, rows, bw_batch)
+    resolved = resolve_model(auto, rows, bw_batch.xdot, bw_batch.dt, bw_batch.mask)
     expected = auto.resolve_substeps(rows, np.asarray(bw_batch.xdot), np.asarray(bw_batch.dt))
     assert resolved.substeps == expected >= 1
-    assert _resolve_model(BOUC_WEN, rows, bw_batch) is BOUC_WEN
-    assert _resolve_model(KWOK, rows, bw_batch) is KWOK
+    assert resolve_model(BOUC_WEN, rows, bw_batch.xdot, bw_batch.dt) is BOUC_WEN
+    assert resolve_model(KWOK, rows, bw_batch.xdot, bw_batch.dt) is KWOK

@@ -2,7 +2,7 @@
 
 1. **Bad input.** One table, `BAD_INPUT`: kind -> how to build it in `tmp_path` -> what the
     one-line message must name. Every kind goes through the Python API (`mrjax.data.load`,
-    `mrjax.fit`, `mrjax.pso.check_bounds`, `mrjax.fit.save`: a one-line `mrjax.InputError`) and
+    `mrjax.fit`, `mrjax.models.check_bounds`, `mrjax.fitting.save`: a one-line `mrjax.InputError`) and
     through `mrjax fit` (exit 2, one `mrjax: error:` line, no traceback unless `--debug`, no
     output, every file under `tmp_path`, an existing output directory included, byte-identical).
     Decisions: fewer scored samples than parameters + 1 is an error; a record shorter than one
@@ -42,13 +42,12 @@ from hypothesis import strategies as st
 import mrjax
 from mrjax import InputError, cli
 from mrjax.data import Condition, load, make_batch, paper_grid, paper_parameters
-from mrjax.models import get
+from mrjax.fitting import save
+from mrjax.models import check_bounds, get
 from mrjax.objective import fitness, residuals, rms_per_condition
-from mrjax.pso import check_bounds
 from mrjax.refine import polish
 
 GENERATIONS = 5
-save = sys.modules["mrjax.fit"].save  # `mrjax.fit` is the function; the module holds `save`
 
 
 # --------------------------------------------------------------------------------------------

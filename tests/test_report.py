@@ -8,7 +8,7 @@ import pytest
 import mrjax
 import mrjax.report as rp
 from mrjax.data import make_batch, paper_grid, paper_parameters
-from mrjax.fit import FitResult
+from mrjax.fitting import FitResult
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 MOTIONS = ((1.0, 0.008), (2.0, 0.004))
@@ -30,7 +30,7 @@ def _result(batch, *, method="pso+lm", gens=(7, 12, 20, 20), seed=0) -> FitResul
         g = np.arange(G + 1)
         hist = np.stack([np.maximum(300.0 * 0.7 ** np.minimum(g, k), r) for k, r in zip(gens, rms)])
     return FitResult(
-        model=model, method=method, swarm="separable" if swarm else "none", seed=seed,
+        model=model, method=method, swarm_mode="separable" if swarm else "none", seed=seed,
         labels=tuple(batch.labels), current=cur, frequency=np.asarray(batch.frequency, float),
         amplitude=np.asarray(batch.amplitude, float), n_samples=np.asarray(batch.n_samples),
         theta=theta, rms=rms, nrmse=rms / 1000.0,

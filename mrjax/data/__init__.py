@@ -5,6 +5,7 @@ from ._condition import Condition as Condition
 from ._condition import make_batch as make_batch
 from ._loaders import DATA_SUFFIXES as DATA_SUFFIXES
 from ._loaders import default_data_dir as default_data_dir
+from ._loaders import expand_paths as expand_paths
 from ._loaders import load as load
 from ._loaders import load_batch as load_batch
 from ._loaders import load_csv as load_csv

@@ -626,7 +626,13 @@ def load_mat(
 _LOADERS = {".csv": load_csv, ".txt": load_txt, ".dat": load_txt, ".mat": load_mat}
 
 
-def _expand(paths: PathLike | Sequence[PathLike]) -> list[Path]:
+def expand_paths(paths: PathLike | Sequence[PathLike]) -> list[Path]:
+    """The data files named by `paths`: files as given, directories expanded to the data files
+    directly inside them (`DATA_SUFFIXES`, sorted by name, hidden files skipped).
+
+    Raises :class:`mrjax.InputError` for a missing path, a directory without data files, an
+    unknown file type or an empty list.
+    """
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     files: list[Path] = []
@@ -676,7 +682,7 @@ def load(paths: PathLike | Sequence[PathLike], **options) -> list[Condition]:
     unknown file type or option, and anything the loaders reject.
     """
     out: list[Condition] = []
-    for f in _expand(paths):
+    for f in expand_paths(paths):
         loader = _LOADERS[f.suffix.lower()]
         accepted = [
             n for n, prm in inspect.signature(loader).parameters.items()

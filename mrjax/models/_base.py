@@ -22,11 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._integrate import choose_substeps, max_abs
-
-#: Sub-steps used when `substeps="auto"` but the inputs are traced (inside `jit`/`vmap`), so no
-#: stiffness estimate can be made. `mrjax.fit` always resolves the count on the host instead.
-TRACED_SUBSTEPS = 8
+from .._errors import InputError
+from ._substeps import TRACED_SUBSTEPS, choose_substeps, max_abs
 
 
 class AbstractModel(eqx.Module):
@@ -67,7 +64,7 @@ class AbstractModel(eqx.Module):
 
     def __check_init__(self):
         if self.substeps is not None and (int(self.substeps) != self.substeps or self.substeps < 1):
-            raise ValueError(f"substeps must be a positive integer or None, got {self.substeps!r}")
+            raise InputError(f"substeps must be a positive integer or None, got {self.substeps!r}")
 
     # ----------------------------------------------------------------------------- metadata
     @property
@@ -111,12 +108,12 @@ class AbstractModel(eqx.Module):
     def params(self, **values: float) -> np.ndarray:
         """Build a parameter vector from keyword values, e.g. `model.params(c=1232., ...)`.
 
-        Raises `ValueError` naming missing or unknown parameters.
+        Raises :class:`mrjax.InputError` naming missing or unknown parameters.
         """
         unknown = set(values) - set(self.param_names)
         missing = [n for n in self.param_names if n not in values]
         if unknown or missing:
-            raise ValueError(
+            raise InputError(
                 f"model {self.name!r}: unknown parameters {sorted(unknown)}, missing {missing}; "
                 f"expected {list(self.param_names)}"
             )

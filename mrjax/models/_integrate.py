@@ -12,47 +12,13 @@ its sample.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 RHS = Callable[[Array, Array, Array, Array], Array]
-
-#: Target of $|\\lambda| h$ per RK4 sub-step used by :func:`choose_substeps` (dimensionless).
-#: RK4 is stable up to 2.78 for a real eigenvalue; with the conservative stiffness estimates of the
-#: models, 1.5 keeps the force NRMSE below 1e-4 on Spencer's 1997 set at 1 and 5 kHz.
-STEP_TARGET = 1.5
-#: Upper limit of the automatic sub-step count.
-MAX_SUBSTEPS = 256
-
-
-def choose_substeps(rate_hz: float, dt_s: float, *, target: float = STEP_TARGET) -> int:
-    """Number of RK4 sub-steps per sample interval for a given stiffness.
-
-    **Arguments:**
-
-    - `rate_hz`: largest magnitude of the Jacobian eigenvalue of the state equation, $|\\lambda|$
-        [1/s] (see each model's `stiffness`).
-    - `dt_s`: largest sample interval [s].
-    - `target`: wanted $|\\lambda| h$ per sub-step (dimensionless).
-
-    **Returns:** an integer in `[1, MAX_SUBSTEPS]`.
-    """
-    if not (math.isfinite(rate_hz) and math.isfinite(dt_s)) or rate_hz <= 0 or dt_s <= 0:
-        return 1
-    return int(min(MAX_SUBSTEPS, max(1, math.ceil(rate_hz * dt_s / target))))
-
-
-def _per_sample(theta: Array, n: int) -> Array:
-    """Broadcast parameters of shape (P,) or (T, P) to (T, P)."""
-    theta = jnp.asarray(theta)
-    if theta.ndim == 1:
-        return jnp.broadcast_to(theta, (n, theta.shape[0]))
-    return theta
 
 
 def rk4_scan(
@@ -119,10 +85,3 @@ def rk4_scan(
 
     _, ys = jax.lax.scan(interval, y0, xs)
     return jnp.concatenate([y0[None, :], ys], axis=0)
-
-
-def max_abs(a: ArrayLike) -> float:
-    """Host-side max |a| ignoring non-finite entries (0 for an empty array)."""
-    a = np.abs(np.asarray(a, dtype=float))
-    a = a[np.isfinite(a)]
-    return float(a.max()) if a.size else 0.0

@@ -1,0 +1,19 @@
+"""The `mrjax` command line: identify MR damper models from measured tests.
+
+```
+mrjax fit DATA... --model kwok [--out DIR]          fit every test, write fit.json/csv + figures
+mrjax fit DATA... --model kwok --generalize two-step   ... plus current-dependent laws
+mrjax predict --fit DIR/fit.json DATA... [--out DIR]  evaluate the laws on other tests
+mrjax reproduce [--quick]                           the paper's study on the embedded data
+mrjax models                                        models, parameters, units, default bounds
+```
+
+Errors in the input (missing or malformed files, unknown models, bad options, unwritable
+output) print one line `mrjax: error: ...` on stderr and exit with code 2; `--debug` shows the
+traceback instead. Ctrl-C exits with 130. Outputs are written atomically: all of them or none.
+"""
+
+from ._main import CACHE_ENV as CACHE_ENV
+from ._main import build_parser as build_parser
+from ._main import enable_compilation_cache as enable_compilation_cache
+from ._main import main as main

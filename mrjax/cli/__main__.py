@@ -1,0 +1,7 @@
+"""`python -m mrjax.cli`: the `mrjax` command."""
+
+import sys
+
+from ._main import main
+
+sys.exit(main())

@@ -1,0 +1,109 @@
+"""`mrjax predict`: evaluate fitted current-dependent laws on other tests."""
+
+from __future__ import annotations
+
+import argparse
+from types import SimpleNamespace
+
+import numpy as np
+
+from .. import __version__
+from .._errors import InputError
+from .._io import atomic_output, check_writable, json_bytes, json_safe
+from ..fitting import csv_cell
+from ..generalize import GeneralizedModel
+from ..report import format_table
+from ._common import DEFAULT_OUT, load_batch, read_fit_json, say, use_agg
+
+_GEN_HINT = "run `mrjax fit DATA... --model NAME --generalize two-step` first"
+
+
+def _rows(batch, rms, nrmse) -> list[dict]:
+    cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
+                      ("current", "frequency", "amplitude"))
+    n = np.asarray(batch.n_samples)
+    return [json_safe({"label": batch.labels[i], "current_A": cur[i], "frequency_Hz": freq[i],
+                       "amplitude_m": amp[i], "n_samples": int(n[i]), "rms_N": rms[i],
+                       "nrmse": nrmse[i]}) for i in range(batch.n_conditions)]
+
+
+def _csv(rows: list[dict]) -> str:
+    cols = list(rows[0])
+    lines = [",".join(cols)]
+    lines += [",".join(csv_cell(np.nan if r[c] is None else r[c]) for c in cols) for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _table(rows: list[dict], model: str) -> str:
+    def num(v, scale=1.0):
+        return None if v is None else v * scale
+
+    body = [[r["label"], num(r["current_A"]), num(r["frequency_Hz"]), num(r["amplitude_m"], 1e3),
+             num(r["rms_N"]), num(r["nrmse"], 100.0)] for r in rows]
+    table = format_table(body, ["condition", "I[A]", "f[Hz]", "A[mm]", "RMS[N]", "NRMSE%"],
+                         floatfmt=["", ".3g", ".3g", ".3g", ".2f", ".2f"])
+    rms = np.array([np.nan if r["rms_N"] is None else r["rms_N"] for r in rows])
+    med = np.nanmedian(rms) if np.any(np.isfinite(rms)) else float("nan")
+    return table + f"\ngeneralized {model}: {len(rows)} conditions, median RMS {med:.2f} N"
+
+
+def _read_model(path: str) -> tuple[GeneralizedModel, str]:
+    doc = read_fit_json(path)
+    if "generalized" not in doc:
+        raise InputError(f"{path}: this fit has no current-dependent laws ('generalized' "
+                         f"block); {_GEN_HINT}")
+    try:
+        gm = GeneralizedModel.from_dict(doc["generalized"])
+    except InputError as e:
+        raise InputError(f"{path}: {e}") from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{path}: cannot read the 'generalized' block ({e!r})") from None
+    return gm, str(doc.get("model", "model"))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run `mrjax predict` with parsed arguments; returns the exit code."""
+    out = check_writable(args.out)
+    gm, model = _read_model(args.fit)
+    batch = load_batch(args.files)
+    C = batch.n_conditions
+    say(f"predicting {C} condition{'s' if C != 1 else ''} with the generalized {model}...")
+    ev = gm.evaluate(batch)
+    rms, nrmse = np.asarray(ev["rms"], float), np.asarray(ev["nrmse"], float)
+    rows = _rows(batch, rms, nrmse)
+    report = {"fit": str(args.fit), "model": model, "mrjax_version": __version__,
+              "median_rms_N": float(np.nanmedian(rms)) if np.any(np.isfinite(rms)) else None,
+              "conditions": rows}
+    files = {"predict.json": json_bytes(report), "predict.csv": _csv(rows).encode()}
+    if not args.no_plots:
+        say("drawing figures...")
+        use_agg()
+        from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+        title = f"generalized {model}: measured vs predicted loops"
+        files["predict_loops.png"] = rp.save_png_bytes(rp.plot_loops_grid(
+            gm, batch, force=np.asarray(ev["predicted"], float), rms=rms, title=title))
+        pts = SimpleNamespace(current=batch.current, frequency=batch.frequency,
+                              amplitude=batch.amplitude, rms=rms, labels=batch.labels)
+        files["predict_rms_vs_current.png"] = rp.save_png_bytes(
+            rp.plot_rms_vs_current({f"generalized {model}": pts}))
+    say(f"writing {len(files)} files to {out}...")
+    atomic_output(out, files)
+    print(_table(rows, model))
+    return 0
+
+
+def add_parser(sub, common: argparse.ArgumentParser) -> None:
+    """Register `mrjax predict` and its options."""
+    p = sub.add_parser(
+        "predict", parents=[common], help="evaluate fitted current-dependent laws on tests",
+        description="Predict the force of other tests from the current-dependent laws in a "
+        "fit.json written by `mrjax fit --generalize`; write predict.json, predict.csv and "
+        "figures.")
+    p.add_argument("--fit", required=True, metavar="FIT.json",
+                   help="fit.json of `mrjax fit --generalize` (or its directory)")
+    p.add_argument("files", nargs="+", metavar="FILE", help="data files or directories")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output directory (default ./{DEFAULT_OUT})")
+    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    p.set_defaults(func=run)

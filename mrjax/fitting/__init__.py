@@ -1,0 +1,29 @@
+"""Identification of a damper model on every test condition at once: `mrjax.fit`.
+
+```python
+import jax, mrjax
+batch = mrjax.data.paper_grid()
+res = mrjax.fit("kwok", batch, key=jax.random.key(0))
+print(res.table())
+res.params_of(0)          # {'c': ..., 'k': ..., ...}
+```
+
+`fit` runs four stages (`prepare`, `run_swarm`, `run_polish`, `evaluate`) and returns a
+:class:`FitResult`; :func:`save` and `FitResult.to_json` are the one writer of `fit.json`.
+The package is named `fitting` so that the function `mrjax.fit` does not hide a module.
+"""
+
+from ._result import FitResult as FitResult
+from ._result import csv_cell as csv_cell
+from ._result import save as save
+from ._stages import PolishStage as PolishStage
+from ._stages import Problem as Problem
+from ._stages import SwarmStage as SwarmStage
+from ._stages import as_batch as as_batch
+from ._stages import evaluate as evaluate
+from ._stages import fit as fit
+from ._stages import prepare as prepare
+from ._stages import run_polish as run_polish
+from ._stages import run_swarm as run_swarm
+from ._swarm import ModelSwarm as ModelSwarm
+from ._swarm import fit_swarm as fit_swarm

@@ -1,0 +1,224 @@
+"""`FitResult`: per-condition identification results, and the one writer of fit.json / fit.csv."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import __version__
+from .._errors import InputError
+from .._io import atomic_output, json_safe
+from ..data import Batch
+from ..models import AbstractModel, resolve_model
+
+
+def _finite_median(a: np.ndarray) -> float:
+    a = np.asarray(a, float)
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else float("nan")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class FitResult:
+    """Per-condition identification results (host NumPy arrays, C conditions, P parameters).
+
+    **Fields:**
+
+    - `model`: the model object; `method`, `swarm_mode` (`"separable"`, `"full"`, or `"none"`
+        for `method="lm"`), `seed`: how it was fitted.
+    - `labels`, `current` [A], `frequency` [Hz], `amplitude` [m] (NaN if unknown),
+        `n_samples`: per condition.
+    - `theta` (C, P): identified parameters, SI units, `param_names` order.
+    - `rms` (C,) [N]: RMS force error on the scored samples; `nrmse` (C,): `rms / max|F|`.
+    - `pso_rms` (C,) [N]: the swarm's RMS before the polish (NaN for `method="lm"`).
+    - `generations` (C,), `stopped_by_criterion` (C,): swarm generations and whether the
+        statistical stop ended it (False: the cap). -1 / False for `method="lm"`.
+    - `history` (C, G+1) [N]: group-best RMS per generation (empty for `"lm"`).
+    - `polish_steps` (C,), `polish_status` (C,) str: Levenberg-Marquardt steps and outcome
+        (`"none"` without polish).
+    - `stderr` (C, P), `ci95` (C, P, 2), `corr` (C, P, P), `identifiable` (C, P): uncertainty
+        from the Jacobian at the optimum (NaN where undefined).
+    - `timings`: seconds per stage.
+    """
+
+    model: AbstractModel
+    method: str
+    swarm_mode: str
+    seed: int
+    labels: tuple[str, ...]
+    current: np.ndarray
+    frequency: np.ndarray
+    amplitude: np.ndarray
+    n_samples: np.ndarray
+    theta: np.ndarray
+    rms: np.ndarray
+    nrmse: np.ndarray
+    pso_rms: np.ndarray
+    generations: np.ndarray
+    stopped_by_criterion: np.ndarray
+    history: np.ndarray
+    polish_steps: np.ndarray
+    polish_status: tuple[str, ...]
+    stderr: np.ndarray
+    ci95: np.ndarray
+    corr: np.ndarray
+    identifiable: np.ndarray
+    timings: dict[str, float]
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """Parameter names, in vector order."""
+        return self.model.param_names
+
+    @property
+    def swarm(self) -> str:
+        """Deprecated alias of `swarm_mode` (kept for one release)."""
+        return self.swarm_mode
+
+    @property
+    def n_conditions(self) -> int:
+        """Number of conditions C."""
+        return len(self.labels)
+
+    def __len__(self) -> int:
+        return self.n_conditions
+
+    def params_of(self, i: int) -> dict[str, float]:
+        """Parameters of condition `i` by name [SI units]."""
+        return {n: float(v) for n, v in zip(self.param_names, self.theta[i])}
+
+    def param(self, name: str) -> np.ndarray:
+        """One parameter across all conditions, shape (C,)."""
+        if name not in self.param_names:
+            raise InputError(f"unknown parameter {name!r}; model {self.model.name!r} has "
+                             f"{list(self.param_names)}")
+        return self.theta[:, self.param_names.index(name)]
+
+    def predict(self, data: Batch) -> np.ndarray:
+        """Force [N] of each condition's parameters on `data` (same conditions), (C, T)."""
+        model = resolve_model(self.model, self.theta, data.xdot, data.dt, data.mask)
+        f = jax.vmap(lambda th, x, v, d: model.force(th, x, v, d))
+        return np.asarray(f(jnp.asarray(self.theta), data.x, data.xdot, data.dt))
+
+    def table(self, *, max_rows: int | None = None) -> str:
+        """A readable fixed-width table: one row per condition, then the medians."""
+        # imported here: mrjax.report loads matplotlib, which `import mrjax` does not need
+        from ..report import format_table
+
+        head = ["condition", "I[A]", "f[Hz]", "A[mm]", "RMS[N]", "NRMSE%", "gens", "stop"]
+        head += list(self.param_names)
+        rows = []
+        for i in range(self.n_conditions):
+            ran = self.generations[i] >= 0
+            stop = "crit" if self.stopped_by_criterion[i] else ("cap" if ran else "-")
+            rows.append([self.labels[i], self.current[i], self.frequency[i],
+                         1e3 * self.amplitude[i], self.rms[i], 100 * self.nrmse[i],
+                         int(self.generations[i]) if ran else None, stop]
+                        + [float(v) for v in self.theta[i]])
+        if max_rows is not None and len(rows) > max_rows:
+            rows = rows[:max_rows] + [["..."] + [None] * (len(head) - 1)]
+        fmt = ["", ".3g", ".3g", ".3g", ".2f", ".2f", "", ""] + [".4g"] * len(self.param_names)
+        med, medn = _finite_median(self.rms), _finite_median(self.nrmse)
+        return (format_table(rows, head, floatfmt=fmt)
+                + f"\n{self.model.name} ({self.method}, {self.swarm_mode}): {self.n_conditions} "
+                f"conditions, median RMS {med:.2f} N, median NRMSE {100 * medn:.2f} %")
+
+    def __repr__(self) -> str:
+        return (f"FitResult(model={self.model.name!r}, method={self.method!r}, "
+                f"swarm_mode={self.swarm_mode!r}, "
+                f"C={self.n_conditions}, median RMS={np.nanmedian(self.rms):.3g} N)")
+
+    def to_dict(self, *, generalized: Any = None) -> dict[str, Any]:
+        """The public `fit.json` schema (see the README); NaN and inf become `None`.
+
+        **Arguments:** `generalized`: an optional `mrjax.generalize.GeneralizedModel` of these
+        fits, written as the `"generalized"` block.
+        """
+        names = self.param_names
+        conds = []
+        for i in range(self.n_conditions):
+            ran = int(self.generations[i]) >= 0
+            conds.append({
+                "label": self.labels[i],
+                "current_A": self.current[i],
+                "frequency_Hz": self.frequency[i],
+                "amplitude_m": self.amplitude[i],
+                "n_samples": int(self.n_samples[i]),
+                "params": dict(zip(names, self.theta[i])),
+                "stderr": dict(zip(names, self.stderr[i])),
+                "rms_N": self.rms[i],  # null where the model diverges
+                "nrmse": self.nrmse[i],
+                "pso_rms_N": self.pso_rms[i],
+                "generations": int(self.generations[i]) if ran else None,
+                "stopped_by_criterion": bool(self.stopped_by_criterion[i]) if ran else None,
+                "polish_status": self.polish_status[i],
+                "polish_steps": int(self.polish_steps[i]),
+                "identifiable": dict(zip(names, self.identifiable[i])),
+            })
+        doc = {
+            "model": self.model.name,
+            "method": self.method,
+            "swarm": self.swarm_mode,
+            "seed": int(self.seed),
+            "param_names": list(names),
+            "units": list(self.model.units),
+            "mrjax_version": __version__,
+            "conditions": conds,
+        }
+        if generalized is not None:
+            doc["generalized"] = generalized.to_dict()
+        return json_safe(doc)
+
+    def to_json(self, *, generalized: Any = None) -> str:
+        """`fit.json` text, the one writer of that file (see :meth:`to_dict`)."""
+        return json.dumps(self.to_dict(generalized=generalized), indent=1, allow_nan=False)
+
+    def to_csv(self) -> str:
+        """`fit.csv` text: one row per condition."""
+        cols = ["label", "current_A", "frequency_Hz", "amplitude_m", "n_samples", "rms_N", "nrmse",
+                "pso_rms_N", "generations", "stopped_by_criterion", "polish_status"]
+        cols += list(self.param_names) + [f"stderr_{n}" for n in self.param_names]
+        out = [",".join(cols)]
+        for i in range(self.n_conditions):
+            vals = [self.labels[i], self.current[i], self.frequency[i], self.amplitude[i],
+                    self.n_samples[i], self.rms[i], self.nrmse[i], self.pso_rms[i],
+                    self.generations[i], bool(self.stopped_by_criterion[i]), self.polish_status[i]]
+            vals += list(self.theta[i]) + list(self.stderr[i])
+            out.append(",".join(csv_cell(v) for v in vals))
+        return "\n".join(out) + "\n"
+
+
+def csv_cell(v: Any) -> str:
+    """One CSV cell: strings quoted when needed, booleans `true`/`false`, integers as such,
+    floats by `repr` (round-trip exact), NaN/inf empty."""
+    if isinstance(v, str):
+        return '"' + v.replace('"', '""') + '"' if ("," in v or '"' in v) else v
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    v = float(v)
+    return "" if not math.isfinite(v) else repr(v)
+
+
+def save(
+    result: FitResult,
+    out_dir: str | os.PathLike,
+    *,
+    generalized: Any = None,
+    extra_files: dict[str, bytes] | None = None,
+) -> Path:
+    """Write `fit.json` (with the `"generalized"` block of `generalized` if given), `fit.csv`
+    and `extra_files` (name -> bytes) into `out_dir` atomically: all files or none."""
+    files = {"fit.json": result.to_json(generalized=generalized).encode(),
+             "fit.csv": result.to_csv().encode()}
+    files.update(extra_files or {})
+    return atomic_output(out_dir, files)

@@ -1,0 +1,90 @@
+"""Current-dependent (generalized) damper models: parameters as laws of the coil current.
+
+A controller needs one model whose parameters are functions of the coil current $i$ [A]
+(Kwok et al. 2006, eq 24-29), not one parameter set per test. This module builds such models
+from per-condition fits, evaluates them at any (also time-varying) current, and inverts the
+tanh model for the current that produces a wanted force.
+
+```python
+import mrjax
+from mrjax.generalize import generalize, inverse_current
+
+batch = mrjax.data.paper_grid()
+res = mrjax.fit("kwok", batch, seed=0)
+gm = generalize(res, batch, method="joint")
+print(gm)                           # c = 1232 + 1929 i, ...
+gm.params_at(0.6)                   # (P,) parameters at 0.6 A
+gm.force(x, xdot, 1e-3, i_signal, lag=190.0)   # time-varying current with a first-order lag
+inverse_current(gm, x, xdot, f_wanted, i_max=2.0)
+```
+
+**Laws.** Each parameter follows a :class:`Law` of the current: `"poly"`,
+$p(i) = \\sum_m a_m i^m$ (coefficients in ascending powers), or `"exp"`,
+$p(i) = \\exp(\\sum_m a_m i^m)$, i.e. $\\exp(a + b\\,i)$ at degree 1 (the law the UTFSM authors
+used for a Bouc-Wen $\\beta$).
+
+**Default degrees** (:func:`default_degrees`). The tanh model (`"kwok"`) uses the paper's:
+c, k, delta, f0 linear, alpha quadratic, beta constant. The other built-in models make their
+force scales linear, their yield/hysteretic force (`alpha`, `fc`) quadratic and the shape of
+their hysteresis constant (after Spencer et al. 1997); an unknown model gets degree 1 for every
+parameter and 2 for `alpha`. An `"exp"` law defaults to degree 1. Default degrees
+are lowered to (number of distinct currents - 1) when the data have fewer currents; a degree
+given explicitly is never lowered (too high a degree is an error).
+
+**Two-step generalization** (the paper's). Group the per-condition parameters by current,
+average them per current, then fit each law to the averages by least squares (an `"exp"` law
+is fitted to the logarithm). With `weighting="equal"` this is literally the paper's procedure
+(plain means, ordinary least squares, one parameter at a time). The default,
+`weighting="covariance"`, uses the per-condition covariances of the fit
+(`FitResult.stderr`/`corr`): each current's average is the inverse-covariance-weighted mean, and
+all laws are fitted together by generalized least squares with the covariance of those means
+(the minimum-distance estimator; it weights well-determined conditions more and uses the
+correlations between parameters). It falls back to `"equal"` (recorded in
+`GeneralizedModel.weighting`) where a covariance is missing, singular or not identifiable.
+
+**Joint generalization.** The law coefficients themselves are the unknowns, fitted to all
+conditions at once: the objective is the RMS force error over every scored sample of every
+condition (:func:`mrjax.objective.masked_rms` on the flattened batch; swarm particles get the
+same number from Gram sums through :func:`mrjax.objective.rms_from_gram`, as in the separable
+per-condition swarm), computed in one batched evaluation. A static model's scored samples are
+packed by current first, so short tests are not padded to the longest one. The batched particle
+swarm (:func:`mrjax.pso.swarm`, one "condition" holding the whole batch) searches the laws of
+the nonlinear parameters; the laws of the parameters the force is linear in (c, k, alpha, f0 of
+the tanh model) are linear in their coefficients too, so every particle gets them by exact
+linear least squares (variable projection). The swarm searches each law through its *values at
+d+1 nodes* spread over the current range (a well-scaled, unit-bearing parametrization of a
+degree-d polynomial; log values for an `"exp"` law), in a box around the two-step solution:
+$\\pm$(3 x the scatter of the per-condition values about the two-step law + 25 % of the value).
+A float64 Levenberg-Marquardt polish (optimistix) then refines every coefficient on the stacked
+residuals of all conditions, starting from the better of the swarm's best and the two-step
+solution, and is kept only if it lowers the total RMS, so the joint total RMS is never above
+the two-step one on the same data.
+
+**Hysteretic scale of Bouc-Wen models.** In Bouc-Wen and modified Bouc-Wen models the scale of
+z is redundant (see `mrjax.models.BoucWen`): per-condition fits may pick different scales,
+and averaging their `alpha`, `delta`, `beta`, `gamma` would be meaningless. Before
+generalizing, each condition's parameters are mapped to the equivalent set (identical force)
+whose z saturates at $|z|_{max} = (\\delta/(\\beta+\\gamma))^{1/n} = 1$, so `alpha` is the
+hysteretic force amplitude in N. The laws of those models refer to this scale; their per-
+condition covariance is singular, so their two-step weighting is `"equal"`.
+
+**Time-varying current.** :meth:`GeneralizedModel.force` accepts a per-sample current; the
+parameters then vary per sample (every model accepts parameters of shape (T, P)). An optional
+first-order current lag $\\dot u = -\\eta (u - i)$ (Spencer et al. 1997) is discretized exactly
+per sample, $u_{k+1} = i_k + (u_k - i_k)\\,e^{-\\eta\\,\\Delta t_k}$, $u_0 = i_0$
+(:func:`lag_current`).
+
+**Inverse model.** :func:`inverse_current` returns, for the tanh model, the current in
+$[i_{min}, i_{max}]$ whose force is closest to a wanted force, saturating at the limits when
+the force is out of reach.
+"""
+
+from ._generalize import generalize as generalize
+from ._inverse import inverse_current as inverse_current
+from ._laws import CURRENT_TOL as CURRENT_TOL
+from ._laws import LAW_KINDS as LAW_KINDS
+from ._laws import Law as Law
+from ._laws import canonical_z_scale as canonical_z_scale
+from ._laws import default_degrees as default_degrees
+from ._laws import lag_current as lag_current
+from ._model import GeneralizedModel as GeneralizedModel

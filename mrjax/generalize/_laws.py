@@ -1,0 +1,246 @@
+"""Laws of a parameter over the coil current, the first-order current lag, default degrees and
+the z-scale normalisation of Bouc-Wen models."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._errors import InputError
+from ..models import AbstractModel, get
+
+LAW_KINDS: tuple[str, ...] = ("poly", "exp")
+#: Two currents closer than this [A] count as the same current when grouping conditions.
+CURRENT_TOL = 1e-6
+#: Models whose hysteretic variable z has a redundant scale (normalised to |z|max = 1).
+Z_SCALE_MODELS = ("bouc_wen", "modified_bouc_wen")
+#: Default law degrees per model (see :func:`default_degrees`).
+DEFAULT_DEGREES: dict[str, dict[str, int]] = {
+    "kwok": {"c": 1, "k": 1, "alpha": 2, "beta": 0, "delta": 1, "f0": 1},  # eq 24-29
+    "bingham": {"fc": 2, "c0": 1, "f0": 1},
+    "bouc_wen": {"c": 1, "k": 1, "alpha": 2, "f0": 1, "delta": 0, "beta": 0, "gamma": 0, "n": 0},
+    "modified_bouc_wen": {"c0": 1, "k0": 0, "c1": 1, "k1": 0, "alpha": 2, "delta": 0, "beta": 0,
+                          "gamma": 0, "n": 0, "f0": 0},
+    "dahl": {"c": 1, "k": 1, "alpha": 2, "rho": 0, "f0": 1},
+}
+#: Relative eigenvalue floor of a per-condition correlation matrix below which its covariance
+#: counts as singular (the two-step "covariance" weighting then falls back to "equal").
+COV_EIG_FLOOR = 1e-12
+#: Row length of the packed samples of a static model's joint fit (see `_joint_data`).
+PACK_ROW = 1024
+
+
+# ------------------------------------------------------------------------------ laws
+def horner(coefficients, i, xp):
+    """Polynomial with ascending `coefficients` at `i` by Horner's rule (`xp` = np or jnp)."""
+    acc = xp.zeros_like(i) + coefficients[-1]
+    for c in coefficients[-2::-1]:
+        acc = acc * i + c
+    return acc
+
+
+@dataclasses.dataclass(frozen=True)
+class Law:
+    """A parameter as a function of the coil current i [A].
+
+    **Fields:**
+
+    - `kind`: `"poly"`, $p(i) = \\sum_m a_m i^m$, or `"exp"`, $p(i) = \\exp(\\sum_m a_m i^m)$
+        ($\\exp(a + b\\,i)$ at degree 1).
+    - `coefficients`: $a_0, a_1, \\dots$ in ascending powers of i, SI units of the parameter
+        per $A^m$ (`"poly"`) or of its logarithm (`"exp"`).
+
+    Calling a law evaluates it: NumPy in, NumPy out; JAX in (also traced), JAX out.
+    """
+
+    kind: str
+    coefficients: tuple[float, ...]
+
+    def __post_init__(self):
+        if self.kind not in LAW_KINDS:
+            raise InputError(f"law kind must be one of {list(LAW_KINDS)}, got {self.kind!r}")
+        try:
+            coef = tuple(float(c) for c in np.asarray(self.coefficients, float).ravel())
+        except (TypeError, ValueError):
+            raise InputError(f"law coefficients must be numbers, got {self.coefficients!r}") \
+                from None
+        if not coef:
+            raise InputError("a law needs at least one coefficient")
+        if not all(math.isfinite(c) for c in coef):
+            raise InputError(f"law coefficients must be finite, got {list(coef)}")
+        object.__setattr__(self, "coefficients", coef)
+
+    @property
+    def degree(self) -> int:
+        """Polynomial degree (in i, or in the exponent for `"exp"`)."""
+        return len(self.coefficients) - 1
+
+    def __call__(self, current):
+        """Value of the law at `current` [A] (any shape)."""
+        xp = jnp if isinstance(current, jax.Array) else np
+        i = current if xp is jnp else np.asarray(current, dtype=float)
+        p = horner(self.coefficients, i, xp)
+        return xp.exp(p) if self.kind == "exp" else p
+
+    def formula(self, var: str = "i") -> str:
+        """Readable formula, e.g. `'1232 + 1929*i'` or `'exp(4.6 - 0.2*i)'`."""
+        terms = []
+        for m, a in enumerate(self.coefficients):
+            mag = f"{abs(a):.6g}"
+            t = mag if m == 0 else (f"{mag}*{var}" if m == 1 else f"{mag}*{var}^{m}")
+            terms.append(("-" if a < 0 else "+", t))
+        s = ("-" if terms[0][0] == "-" else "") + terms[0][1]
+        for sign, t in terms[1:]:
+            s += f" {sign} {t}"
+        return f"exp({s})" if self.kind == "exp" else s
+
+    def to_dict(self) -> dict[str, Any]:
+        """`{"law": kind, "degree": d, "coefficients": [a0, a1, ...]}`."""
+        return {"law": self.kind, "degree": self.degree, "coefficients": list(self.coefficients)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], name: str = "law") -> Law:
+        """Inverse of :meth:`to_dict`; raises :class:`mrjax.InputError` naming `name`."""
+        if not isinstance(d, Mapping) or "coefficients" not in d:
+            raise InputError(f"law of {name!r} must be an object with 'law' and 'coefficients'")
+        law = cls(str(d.get("law", "poly")), d["coefficients"])
+        if "degree" in d and d["degree"] is not None and int(d["degree"]) != law.degree:
+            raise InputError(f"law of {name!r}: degree {d['degree']} does not match "
+                             f"{len(law.coefficients)} coefficients")
+        return law
+
+
+class LawSet(eqx.Module):
+    """All laws of a model as one traceable function: `coef` (V,) concatenated coefficients,
+    `kinds` and `sizes` (number of coefficients) per parameter, static."""
+
+    coef: Float[Array, " V"]
+    kinds: tuple[str, ...] = eqx.field(static=True)
+    sizes: tuple[int, ...] = eqx.field(static=True)
+
+    def __call__(self, current: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape P"]:
+        i = jnp.asarray(current, dtype=self.coef.dtype)
+        cols, o = [], 0
+        for kind, s in zip(self.kinds, self.sizes):
+            p = horner([self.coef[o + m] for m in range(s)], i, jnp)
+            cols.append(jnp.exp(p) if kind == "exp" else p)
+            o += s
+        return jnp.stack(cols, axis=-1)
+
+
+# ------------------------------------------------------------------------------ helpers
+def lag_current(
+    current: Float[ArrayLike, " T"], dt: Float[ArrayLike, "*T"], eta: Float[ArrayLike, ""]
+) -> Float[Array, " T"]:
+    """First-order current lag $\\dot u = -\\eta (u - i)$, discretized exactly per sample.
+
+    With the current held at $i_k$ over the interval $\\Delta t_k$ after sample k:
+    $u_{k+1} = i_k + (u_k - i_k)\\,e^{-\\eta \\Delta t_k}$, $u_0 = i_0$.
+
+    **Arguments:** `current` commanded current [A] (T,); `dt` interval after each sample [s],
+    scalar or (T,); `eta` lag rate [1/s] (Spencer et al. 1997: 190 1/s). Jittable.
+
+    **Returns:** the effective current u [A], shape (T,).
+    """
+    i = jnp.asarray(current, dtype=float)
+    a = jnp.exp(-jnp.asarray(eta, dtype=float) * jnp.broadcast_to(jnp.asarray(dt, float), i.shape))
+
+    def step(u, inp):
+        ik, ak = inp
+        return ik + (u - ik) * ak, u
+
+    _, u = jax.lax.scan(step, i[0], (i, a))
+    return u
+
+
+def default_degrees(model: str | AbstractModel, n_currents: int | None = None) -> dict[str, int]:
+    """Default polynomial degree of each parameter's law.
+
+    - `"kwok"`: the paper's (eq 24-29): c, k, delta, f0 linear; alpha quadratic; beta constant.
+    - The other built-in models follow the same idea and Spencer et al. (1997), who make the
+        modified Bouc-Wen c0, c1 and alpha linear in the command and keep every other parameter
+        constant: the force scales (damping, stiffness, offset) are linear in the current, the
+        yield or hysteretic force (`alpha`, Bingham's `fc`) is quadratic (it saturates with
+        the magnetic field, like the paper's alpha), and the *shape* of the hysteresis
+        (Bouc-Wen delta, beta, gamma, n on the |z|max = 1 scale; Dahl rho) is constant. The
+        modified Bouc-Wen keeps Spencer's constant k0, k1 and f0 (= -k1 x0). Letting the shape
+        parameters follow the current as well makes these strongly nonlinear models interpolate
+        badly between measured currents (measured on the UTFSM data).
+    - Any other model: degree 1, and 2 for `alpha`.
+
+    With `n_currents` given, degrees are capped at `n_currents - 1`.
+    """
+    model = get(model)
+    if model.name in DEFAULT_DEGREES and set(DEFAULT_DEGREES[model.name]) == set(
+            model.param_names):
+        deg = dict(DEFAULT_DEGREES[model.name])
+    else:
+        deg = {n: (2 if n == "alpha" else 1) for n in model.param_names}
+    if n_currents is not None:
+        deg = {n: min(d, max(int(n_currents) - 1, 0)) for n, d in deg.items()}
+    return deg
+
+
+def canonical_z_scale(model: AbstractModel, theta: ArrayLike) -> np.ndarray:
+    """Map Bouc-Wen / modified Bouc-Wen parameters (..., P) to the equivalent set (same force)
+    with $|z|_{max} = (\\delta/(\\beta+\\gamma))^{1/n} = 1$; other models pass unchanged.
+
+    With $s = (\\delta/(\\beta+\\gamma))^{-1/n}$: $\\delta \\to s\\delta$,
+    $\\beta, \\gamma \\to s^{1-n}\\beta, s^{1-n}\\gamma$, $\\alpha \\to \\alpha/s$. Rows with
+    $\\beta + \\gamma \\le 0$ or $\\delta \\le 0$ are left as they are.
+    """
+    th = np.array(theta, dtype=float, copy=True)
+    if model.name not in Z_SCALE_MODELS:
+        return th
+    ix = model.param_names.index
+    d, b, g, n = (th[..., ix(k)] for k in ("delta", "beta", "gamma", "n"))
+    with np.errstate(all="ignore"):
+        ratio = d / (b + g)
+        ok = np.isfinite(ratio) & (ratio > 0) & ((b + g) > 0) & (n > 0)
+        s = np.where(ok, np.where(ok, ratio, 1.0) ** (-1.0 / np.where(ok, n, 1.0)), 1.0)
+        sb = s ** (1.0 - n)
+    th[..., ix("delta")] = s * d
+    th[..., ix("beta")] = sb * b
+    th[..., ix("gamma")] = sb * g
+    th[..., ix("alpha")] = th[..., ix("alpha")] / s
+    return th
+
+
+def group_currents(cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct currents (U,) (within `CURRENT_TOL`) and each condition's group index (C,)."""
+    order = np.argsort(cur, kind="stable")
+    ids = np.zeros(cur.shape[0], int)
+    levels: list[list[float]] = []
+    for j in order:
+        if levels and abs(cur[j] - levels[-1][0]) <= CURRENT_TOL:
+            levels[-1].append(cur[j])
+        else:
+            levels.append([cur[j]])
+        ids[j] = len(levels) - 1
+    return np.array([np.mean(v) for v in levels]), ids
+
+
+def fit_space(theta: np.ndarray, exp_cols: np.ndarray) -> np.ndarray:
+    """Parameters in the space their law is polynomial in: log for "exp" laws."""
+    e = exp_cols[None, :]
+    return np.where(e, np.log(np.abs(np.where(e, theta, 1.0))), theta)
+
+
+def vander(i: np.ndarray, size: int) -> np.ndarray:
+    """(len(i), size) Vandermonde matrix in ascending powers."""
+    return np.asarray(i, float)[:, None] ** np.arange(size)[None, :]
+
+
+def nodes(lo: float, hi: float, size: int) -> np.ndarray:
+    """`size` interpolation nodes [A] spread over [lo, hi] (the mid-point for one)."""
+    if size == 1:
+        return np.array([0.5 * (lo + hi)])
+    return np.linspace(lo, hi, size)
