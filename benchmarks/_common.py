@@ -17,14 +17,24 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+#: The benchmarks directory (results.md, results.json and the PNGs are written here).
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+
+
+def log(msg: str) -> None:
+    """Progress on stderr with the time of day."""
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
 
 def block(x):
     """Wait for JAX results (no-op for host values)."""
-    import jax
+    import jax  # here, not at the top: `render` (via fmt_s, md_table) must not need JAX
 
     return jax.block_until_ready(x)
 
@@ -146,7 +156,7 @@ def _version(pkg: str) -> str | None:
 
 def environment() -> dict[str, Any]:
     """CPU, cores, accelerator and package versions of this run."""
-    import jax
+    import jax  # as in `block`
 
     devs = jax.devices()
     gpus = [str(d) for d in devs if d.platform != "cpu"]
