@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mrjax  # noqa: F401  (enables float64)
-from mrjax import pso
+from mrjax import fitting, pso
 from mrjax.data import paper_grid
 from mrjax.models import get
 
@@ -55,7 +55,7 @@ def bare_kernel(
     per iteration so that XLA cannot hoist the evaluation out of the loop).
     """
     if dtype is not None:
-        obj, data = pso._cast_floats((obj, data), jnp.dtype(dtype))
+        obj, data = pso.cast_floats((obj, data), jnp.dtype(dtype))
     rng = np.random.default_rng(seed)
     lo, hi = np.broadcast_to(lo, (C, D)), np.broadcast_to(hi, (C, D))
     pos = lo[:, None, :] + rng.uniform(size=(C, N, D)) * (hi - lo)[:, None, :]
@@ -87,7 +87,7 @@ def per_generation_by_callback(
 
     def run():
         stamps.clear()
-        r = pso.fit_swarm(
+        r = fitting.fit_swarm(
             model,
             batch,
             key=jax.random.key(0),

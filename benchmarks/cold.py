@@ -24,9 +24,9 @@ _BREAKDOWN = r"""
 import json, sys, time
 t0 = time.perf_counter()
 import mrjax
-from mrjax.cli import _enable_compilation_cache
-from mrjax.fit import as_batch, save
-_enable_compilation_cache()  # as the `mrjax` command does ($MRJAX_CACHE_DIR; off: none)
+from mrjax.cli import enable_compilation_cache
+from mrjax.fitting import as_batch, save
+enable_compilation_cache()  # as the `mrjax` command does ($MRJAX_CACHE_DIR; off: none)
 t1 = time.perf_counter()
 batch = as_batch(sys.argv[1])
 t2 = time.perf_counter()

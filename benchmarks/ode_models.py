@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mrjax import pso
+from mrjax import models, objective
 from mrjax.models import get
 
 from . import baselines
@@ -62,11 +62,12 @@ def _one_model(cfg, name: str) -> dict:
     batch = ode_grid(name)
     base = get(name)
     lo, hi = base.bounds
-    model = pso.resolve_model(
-        base, pso.box_corners(base, lo, hi), batch, cap=pso.SWARM_MAX_SUBSTEPS
+    model = models.resolve_model(
+        base, models.box_corners(base, lo, hi), batch.xdot, batch.dt, batch.mask,
+        cap=models.SWARM_MAX_SUBSTEPS
     )
     C, D = batch.n_conditions, base.n_params
-    data = pso.condition_data(batch)
+    data = objective.condition_data(batch)
     res: dict = {
         "substeps": model.substeps,
         "work": f"{C} conditions x {N_PARTICLES} particles x {batch.length} samples, "
@@ -77,7 +78,7 @@ def _one_model(cfg, name: str) -> dict:
     K = cfg.ode_generations
     for dn, dt in DTYPES.items():
         one, loop, pos[dn] = bare_kernel(
-            pso.FullObjective(model), C, N_PARTICLES, D, lo, hi, data, dt, loops=K
+            objective.FullObjective(model), C, N_PARTICLES, D, lo, hi, data, dt, loops=K
         )
         fns[f"kernel {dn}"] = one
         fns[f"kernel {dn} x{K} (in one loop)"] = loop

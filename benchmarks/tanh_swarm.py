@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mrjax import pso
+from mrjax import fitting, objective, pso
 from mrjax.data import paper_grid, paper_truth
 from mrjax.models import get
 from mrjax.objective import rms_per_condition
@@ -27,8 +27,8 @@ def separable_objective(model):
     searches a parameter's logarithm)."""
     lo, hi = model.bounds
     nl = model.nonlinear_index
-    logs = pso._log_flags(model, lo)[nl]
-    obj = pso.SeparableObjective(
+    logs = objective.log_search_flags(model, lo)[nl]
+    obj = objective.SeparableObjective(
         model, jnp.asarray(lo), jnp.asarray(hi), tuple(bool(v) for v in logs)
     )
     s_lo = np.where(logs, np.log(np.where(logs, lo[nl], 1.0)), lo[nl])
@@ -44,7 +44,7 @@ def _quality(rms, truth_rms) -> dict:
 
 
 def _swarm(model, batch, params, mode, dtype):
-    return pso.fit_swarm(
+    return fitting.fit_swarm(
         model,
         batch,
         key=jax.random.key(0),
@@ -66,7 +66,7 @@ def _time_mrjax_and_kernels(cfg, model, batch, params, data) -> dict:
                 model, batch, params, mode, dt
             ).rms
         k_full, k_full_loop, _ = bare_kernel(
-            pso.FullObjective(model), C, N_PARTICLES, D, lo, hi, data, dt, loops=G
+            objective.FullObjective(model), C, N_PARTICLES, D, lo, hi, data, dt, loops=G
         )
         sobj, s_lo, s_hi = separable_objective(model)
         k_sep, k_sep_loop, _ = bare_kernel(
@@ -156,11 +156,11 @@ def _evosax(cfg, model, data, C, truth_rms):
     try:
         ev = {}
         for dn, dt in DTYPES.items():
-            obj = pso.FullObjective(model)
+            obj = objective.FullObjective(model)
             d_ = data
             lo_, hi_ = lo, hi
             if dt is not None:
-                obj, d_ = pso._cast_floats((obj, data), jnp.dtype(dt))
+                obj, d_ = pso.cast_floats((obj, data), jnp.dtype(dt))
                 lo_, hi_ = lo.astype(dt), hi.astype(dt)
             run = baselines.evosax_runner(
                 obj, lo_, hi_, n_particles=N_PARTICLES, generations=GENERATIONS
@@ -206,7 +206,7 @@ def section_tanh(cfg) -> dict:
     model = get("kwok")
     lo, hi = model.bounds
     params = pso.PSOParams(criterion=False)
-    data = pso.condition_data(batch)
+    data = objective.condition_data(batch)
     truth_rms = rms_per_condition(model, paper_truth(batch), batch)
     out: dict = {
         "work": f"{batch.n_conditions} conditions x {N_PARTICLES} particles x {batch.length} "

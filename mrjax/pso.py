@@ -485,14 +485,15 @@ def swarm(
         dtype = jnp.dtype(dtype)
         if not jnp.issubdtype(dtype, jnp.floating):
             raise InputError(f"swarm dtype must be a floating-point type, got {dtype}")
-        objective, data = _cast_floats((objective, data), dtype)
+        objective, data = cast_floats((objective, data), dtype)
         lower, upper = lower.astype(dtype), upper.astype(dtype)
     return _swarm(objective, lower, upper, data, keys, params, int(n_particles),
                   int(max_generations), callback)
 
 
-def _cast_floats(tree, dtype):
-    """Cast the floating-point array leaves of a pytree (e.g. an objective module) to `dtype`."""
+def cast_floats(tree: Any, dtype: Any) -> Any:
+    """Cast the floating-point array leaves of a pytree (e.g. an objective module and its data)
+    to `dtype` (how :func:`swarm` runs in float32); other leaves pass unchanged."""
 
     def cast(a):
         if eqx.is_array(a) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:

@@ -159,7 +159,7 @@ def test_same_seed_same_numbers(quick, again):
 
 
 def test_cli_default_output_directory():
-    args = cli._parser().parse_args(["reproduce"])
+    args = cli.build_parser().parse_args(["reproduce"])
     assert args.out == "mrjax-out" and args.seed == 0 and not args.quick and args.data is None
 
 

@@ -29,11 +29,9 @@ def _process_times() -> dict[str, float | None]:
 def _fit_files(study: Study) -> dict[str, bytes]:
     """`fit.json` (the accurate tanh fit with its headline generalized laws, readable by
     `mrjax predict --fit`) and `fits/<run>.json` for every run."""
-    fit_doc = study.runs["kwok_separable"].to_dict()
     key = headline_generalized(study)
-    if key is not None:
-        fit_doc["generalized"] = study.generalized[key].to_dict()
-    files = {"fit.json": json_bytes(fit_doc)}
+    gm = study.generalized[key] if key is not None else None
+    files = {"fit.json": study.runs["kwok_separable"].to_json(generalized=gm).encode()}
     for k, r in study.runs.items():
         files[f"fits/{k}.json"] = r.to_json().encode()
     return files

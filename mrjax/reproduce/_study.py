@@ -15,11 +15,10 @@ from typing import Any
 import numpy as np
 
 from ..data import Batch
-from ..fit import FitResult, fit
+from ..fitting import FitResult, fit
 from ..generalize import generalize
-from ..models import AbstractModel, get
+from ..models import AbstractModel, get, resolve_model
 from ..objective import fit_mask, nrmse, rms_per_condition
-from ..pso import resolve_model
 from ..refine import polish
 from ._data import DATA_CYCLES, load_study_data
 from ._stats import finite_median
@@ -142,7 +141,7 @@ def headline_generalized(study: Study) -> str | None:
 
 def _reevaluated(result: FitResult, model: AbstractModel, batch: Batch) -> FitResult:
     """`result` with `model` (sub-steps resolved from its parameters) and its RMS recomputed."""
-    m = resolve_model(model, result.theta, batch)
+    m = resolve_model(model, result.theta, batch.xdot, batch.dt, batch.mask)
     rms = np.asarray(rms_per_condition(m, result.theta, batch, batch.mask), float)
     return dataclasses.replace(result, model=model, rms=rms,
                                nrmse=nrmse(rms, batch.force, batch.mask))
@@ -182,19 +181,19 @@ def _polished(result: FitResult, batch: Batch, polish_steps: int = 200) -> FitRe
 
 
 def _job_kwok_paper_swarm(study: Study) -> FitResult:
-    return fit("kwok", study.batch, method="pso", swarm="full", seed=study.seed,
+    return fit("kwok", study.batch, method="pso", swarm_mode="full", seed=study.seed,
                uncertainty=False, bounds=_paper_box(study, "kwok"), **_caps(study))
 
 
 def _job_bouc_wen_paper_swarm(study: Study) -> FitResult:
-    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm="full",
+    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm_mode="full",
             seed=study.seed, uncertainty=False, bounds=_paper_box(study, "bouc_wen"),
             **_caps(study))
     return _reevaluated(r, get("bouc_wen"), study.batch)
 
 
 def _job_bouc_wen_separable(study: Study) -> FitResult:
-    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm="separable",
+    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm_mode="separable",
             seed=study.seed, uncertainty=False, **_caps(study))
     return _reevaluated(r, get("bouc_wen"), study.batch)
 

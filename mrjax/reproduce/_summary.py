@@ -16,7 +16,7 @@ import numpy as np
 from .. import __version__
 from .._io import json_safe
 from ..data import PAPER_COEFFICIENTS, paper_truth
-from ..fit import FitResult
+from ..fitting import FitResult
 from ._stats import finite_mean, finite_median
 from ._study import RUN_TITLES, Study
 
@@ -39,7 +39,7 @@ def _run_summary(res: FitResult) -> dict[str, Any]:
     gens = np.asarray(res.generations)
     swarm = bool(np.any(gens >= 0))
     return {
-        "model": res.model.name, "method": res.method, "swarm": res.swarm,
+        "model": res.model.name, "method": res.method, "swarm": res.swarm_mode,
         "median_rms_N": json_safe(finite_median(res.rms)),
         "mean_rms_N": json_safe(finite_mean(res.rms)),
         "max_rms_N": json_safe(np.nanmax(res.rms)),
