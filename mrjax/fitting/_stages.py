@@ -12,7 +12,7 @@ import os
 import sys
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import equinox as eqx
@@ -145,38 +145,28 @@ def _place(batch: Batch, mask, devices) -> tuple[Batch, Any]:
     return (batch, mask) if devices is None else shard_batch(batch, mask, devices)
 
 
-def prepare(
-    model: str | AbstractModel,
-    data: Any,
-    *,
-    method: Method = "pso+lm",
-    swarm_mode: SwarmMode = "separable",
-    key: ArrayLike | None = None,
-    seed: int = 0,
-    bounds: tuple[ArrayLike, ArrayLike] | None = None,
-    transient: float | str | None = None,
-    n_particles: int = 50,
-    max_generations: int = 200,
-    generations: int | None = None,
-    pso_params: PSOParams | None = None,
-    polish_steps: int = 200,
-    uncertainty: bool = True,
-    progress: bool | None = False,
-    devices: Sequence | None = None,
-    callback: Callable | None = None,
-    swarm_dtype: Any = None,
-    restarts: int = 1,
-) -> Problem:
+def prepare(model: str | AbstractModel, data: Any, options: Mapping[str, Any]) -> Problem:
     """Stage 1 of `mrjax.fit`: check every option and the data, build the fit mask, place the
-    batch on the devices. Arguments as `mrjax.fit`; raises :class:`mrjax.InputError`."""
+    batch on the devices.
+
+    **Arguments:** `model`, `data` as `mrjax.fit`; `options` the keyword arguments of
+    `mrjax.fit` (all of them, by name: `method`, `swarm_mode`, `key`, `seed`, ...).
+
+    Raises :class:`mrjax.InputError`.
+    """
+    o = dict(options)
+    method, swarm_mode, seed = o["method"], o["swarm_mode"], o["seed"]
+    pso_params, max_generations, generations = (o["pso_params"], o["max_generations"],
+                                                o["generations"])
+    restarts, devices, key = o["restarts"], o["devices"], o["key"]
     model = get(model)
     if method not in ("pso", "pso+lm", "lm"):
         raise InputError(f"method must be 'pso', 'pso+lm' or 'lm', got {method!r}")
     if swarm_mode not in ("separable", "full"):
         raise InputError(f"swarm must be 'separable' or 'full', got {swarm_mode!r}")
     source = as_batch(data)
-    lo, hi = check_bounds(model, bounds)
-    mask = fit_mask(source, transient)
+    lo, hi = check_bounds(model, o["bounds"])
+    mask = fit_mask(source, o["transient"])
     _check_records(model, source, mask)
     if key is None:
         key = jax.random.key(int(seed))
@@ -189,14 +179,15 @@ def prepare(
     if isinstance(restarts, bool) or int(restarts) != restarts or restarts < 1:
         raise InputError(f"restarts must be an integer >= 1, got {restarts!r}")
     batch, placed_mask = _place(source, mask, devices)
-    options = dict(mode=swarm_mode, bounds=(lo, hi), params=pso_params, n_particles=n_particles,
-                   max_generations=int(max_generations), dtype=swarm_dtype)
+    swarm_options = dict(mode=swarm_mode, bounds=(lo, hi), params=pso_params,
+                         n_particles=o["n_particles"], max_generations=int(max_generations),
+                         dtype=o["swarm_dtype"])
     return Problem(
         model=model, batch=batch, mask=placed_mask, source=source, n_real=source.n_conditions,
         lower=lo, upper=hi, key=key, seed=int(seed), method=method, swarm_mode=swarm_mode,
-        transient=transient, devices=devices, swarm_options=options, restarts=int(restarts),
-        polish_steps=int(polish_steps), uncertainty=bool(uncertainty), progress=progress,
-        callback=callback)
+        transient=o["transient"], devices=devices, swarm_options=swarm_options,
+        restarts=int(restarts), polish_steps=int(o["polish_steps"]),
+        uncertainty=bool(o["uncertainty"]), progress=o["progress"], callback=o["callback"])
 
 
 def _progress_callback(enabled: bool | None, max_generations: int):
@@ -387,17 +378,14 @@ def fit(
     whose record is shorter than one excitation period (known frequency): it has no complete
     hysteresis loop, so its parameters are poorly determined.
     """
+    options = {k: v for k, v in locals().items() if k not in ("model", "data", "swarm")}
     if swarm is not None:
         warnings.warn("fit(swarm=...) is deprecated; use swarm_mode=", DeprecationWarning,
                       stacklevel=2)
-        swarm_mode = swarm
+        options["swarm_mode"] = swarm
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    p = prepare(model, data, method=method, swarm_mode=swarm_mode, key=key, seed=seed,
-                bounds=bounds, transient=transient, n_particles=n_particles,
-                max_generations=max_generations, generations=generations, pso_params=pso_params,
-                polish_steps=polish_steps, uncertainty=uncertainty, progress=progress,
-                devices=devices, callback=callback, swarm_dtype=swarm_dtype, restarts=restarts)
+    p = prepare(model, data, options)
     timings["prepare"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     sw = run_swarm(p)
