@@ -2,6 +2,9 @@
 sanity checks, reports and the synthetic grid."""
 
 from ._checks import check_condition as check_condition
+from ._columns import ROLES as ROLES
+from ._columns import Column as Column
+from ._columns import Meta as Meta
 from ._condition import COMMAND_UNITS as COMMAND_UNITS
 from ._condition import ESTIMATED_FIELDS as ESTIMATED_FIELDS
 from ._condition import Batch as Batch
@@ -20,10 +23,7 @@ from ._loaders import load as load
 from ._loaders import load_batch as load_batch
 from ._loaders import load_file as load_file
 from ._mat import load_mat as load_mat
-from ._spec import ROLES as ROLES
-from ._spec import Column as Column
 from ._spec import DataSpec as DataSpec
-from ._spec import Meta as Meta
 from ._spectrum import estimate_motion as estimate_motion
 from ._synthetic import PAPER_COEFFICIENTS as PAPER_COEFFICIENTS
 from ._synthetic import PAPER_CURRENTS as PAPER_CURRENTS

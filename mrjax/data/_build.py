@@ -23,8 +23,8 @@ import numpy as np
 
 from .._errors import InputError
 from ._checks import check_condition
+from ._columns import ROLES, SIGNAL_ROLES, Column, Meta
 from ._condition import Condition
-from ._spec import ROLES, Column, Meta
 from ._spectrum import estimate_motion
 from ._units import check_unit, command_unit
 from ._velocity import estimate_velocity, velocity_window
@@ -120,7 +120,7 @@ def assemble(
             if key is not None:
                 source += f" (condition {key!r})"
             if j is not None:
-                source += f" ({', '.join(str(cs[j].source) for cs in read.wide.values())})"
+                source += f" ({', '.join(f'{r} {cs[j].source}' for r, cs in read.wide.items())})"
             if j is not None and wide_meta and wide_meta[j].label is not None:
                 label = wide_meta[j].label
             elif key is not None and m.label is None:
@@ -134,8 +134,7 @@ def assemble(
 def _one(read: _Read, cols: Mapping[str, Column], idx: np.ndarray, key: str | None, meta: Meta,
          label: str, source: str, window_s: float | None, strict: bool) -> Condition:
     notes = list(read.notes)
-    sig = {r: _signal(read, c, r, idx) for r, c in cols.items()
-           if r in ("time", "displacement", "velocity", "force", "current", "command")}
+    sig = {r: _signal(read, c, r, idx) for r, c in cols.items() if r in SIGNAL_ROLES}
     values = dict(current=meta.current, frequency=meta.frequency, amplitude=meta.amplitude)
     for role in ("frequency", "amplitude"):
         if role in cols and values[role] is None:

@@ -10,9 +10,9 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import _Read, assemble
+from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, stem
-from ._spec import Column, Meta
 from ._units import COLUMN_QUANTITIES, UNITS, parse_column
 
 _STRICT_REQUIRED = ("time", "displacement", "force", "current")

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .._errors import InputError
-from ._spec import Meta
+from ._columns import Meta
 
 PathLike = str | os.PathLike
 

@@ -9,9 +9,10 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import _Read, assemble
+from ._columns import Column
 from ._condition import Batch, Condition
 from ._csv import _conventional, _index
-from ._spec import Column, DataSpec
+from ._spec import DataSpec
 
 if TYPE_CHECKING:
     import pandas as pd

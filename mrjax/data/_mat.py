@@ -8,9 +8,9 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import _Read, assemble
+from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
-from ._spec import Column, Meta
 from ._text import _units_check
 from ._units import check_unit
 
@@ -77,14 +77,16 @@ def _matrix(data: Mapping, name: str, src: str) -> np.ndarray:
     return m.T if m.shape[0] < m.shape[1] else m
 
 
-def _column(data: Mapping, present: list[str], col: Column, role: str, src: str) -> np.ndarray:
+def _column(data: Mapping, present: list[str], col: Column, role: str,
+            src: str) -> tuple[np.ndarray, str]:
+    """The values of `col` and the name of the variable they come from."""
     if col.name is not None and col.name not in data:
         raise InputError(
             f"{src}: variable {col.name!r} ({role}) not found; variables present: "
             f"{_listing(present)}"
         )
     if col.index is None:
-        return _vector(data, col.name, role, src)
+        return _vector(data, col.name, role, src), col.name
     name = col.name
     if name is None:
         mats = _matrices(data, present)
@@ -100,7 +102,7 @@ def _column(data: Mapping, present: list[str], col: Column, role: str, src: str)
             f"{src}: {role} column {name}[{col.index}] does not exist: {name!r} has shape "
             f"{np.asarray(data[name]).shape}, {m.shape[1]} column(s) numbered from 0"
         )
-    return m[:, col.index].astype(float)
+    return m[:, col.index].astype(float), name
 
 
 def read_mat(
@@ -123,13 +125,14 @@ def read_mat(
     lengths: dict[str, int] = {}
     asked = [(r, c) for r, c in columns.items()] + [
         (f"{r}[{j}]", c) for r, cs in wide.items() for j, c in enumerate(cs)]
+    used = set(_META)
     for role, c in asked:
-        values[c] = _column(data, present, c, role.partition("[")[0], src)
+        values[c], name = _column(data, present, c, role.partition("[")[0], src)
         lengths[role] = values[c].shape[0]
+        used.add(name)
     if len(set(lengths.values())) > 1:
         raise InputError(f"{src}: mismatched column lengths {lengths}")
     notes = []
-    used = {c.name for c in values} | set(_META)
     if not strict and (unused := [k for k in present if k not in used]):
         notes.append(f"variable(s) {', '.join(unused)} not used")
     n = next(iter(values.values())).shape[0]

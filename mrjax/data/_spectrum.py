@@ -28,8 +28,9 @@ from .._errors import InputError
 #: Share of the displacement-derivative energy that defines the bandwidth.
 BANDWIDTH_SHARE = 0.99
 #: A record is broadband when the dominant peak holds less than this share of the velocity
-#: energy.
+#: energy, or when its bandwidth exceeds this multiple of the peak frequency.
 _BROADBAND_PEAK_SHARE = 0.5
+_BROADBAND_RATIO = 4.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,7 +102,8 @@ def bandwidth(sp: _Spectrum, share: float = BANDWIDTH_SHARE) -> float:
 
 def peak_share(sp: _Spectrum) -> tuple[float, float]:
     """`(f_peak [Hz], share)`: the strongest bin of the displacement and the share of the
-    velocity energy within +-10 % (at least +-3 bins) of it."""
+    velocity energy within the main lobe of the Hann window around it (+-2 bins, at least
+    +-2 % of the frequency)."""
     if sp.power.shape[0] < 2:
         return 0.0, 1.0
     kp = int(np.argmax(sp.power[1:])) + 1
@@ -110,13 +112,16 @@ def peak_share(sp: _Spectrum) -> tuple[float, float]:
     if not total > 0:
         return float(sp.f[kp]), 1.0
     df = sp.f[1] - sp.f[0]
-    near = np.abs(sp.f - sp.f[kp]) <= max(3 * df, 0.1 * sp.f[kp])
+    near = np.abs(sp.f - sp.f[kp]) <= max(2 * df, 0.02 * sp.f[kp])
     return float(sp.f[kp]), float(np.sum(e[near]) / total)
 
 
 def is_broadband(sp: _Spectrum) -> bool:
-    """Whether the dominant peak holds less than half the velocity energy."""
-    return peak_share(sp)[1] < _BROADBAND_PEAK_SHARE
+    """Whether no single frequency describes the motion: the dominant peak holds less than half
+    the velocity energy, or 99 % of it reaches beyond 4 times the peak frequency (a long
+    dominant period with fast motion on top, as in earthquake records)."""
+    f_peak, share = peak_share(sp)
+    return share < _BROADBAND_PEAK_SHARE or bandwidth(sp) > _BROADBAND_RATIO * f_peak
 
 
 def _sine_residual(t: np.ndarray, x: np.ndarray, f: float) -> float:

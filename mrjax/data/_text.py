@@ -11,9 +11,9 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import _Read, assemble
+from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
-from ._spec import Column, Meta
 from ._units import check_unit
 
 #: Default units of :func:`load_txt`: time, displacement, velocity, force (UTFSM files).

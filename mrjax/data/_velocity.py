@@ -38,7 +38,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ._spectrum import bandwidth, peak_share, spectrum
+from ._spectrum import bandwidth, is_broadband, peak_share, spectrum
 
 #: Largest relative spread of the sample interval still treated as uniform sampling.
 _UNIFORM_RTOL = 1e-3
@@ -65,11 +65,13 @@ class VelocityWindow:
     - `bandwidth_Hz`: frequency below which 99 % of the displacement-derivative energy above
         the noise floor lies [Hz] (0 when no signal stands above the floor).
     - `peak_Hz`: the strongest frequency of the displacement [Hz].
-    - `peak_share`: share of the velocity energy within +-10 % of `peak_Hz` (1 for a sine).
+    - `peak_share`: share of the velocity energy in the spectral peak at `peak_Hz` (1 for a
+        sine).
     - `noise`: standard deviation of the white displacement noise, in the unit of `x`.
     - `expected_error`: expected RMS velocity error relative to the RMS velocity.
-    - `broadband`: `peak_share < 0.5`: no single frequency describes the motion (random or
-        earthquake-type records); check the estimate, or give the window.
+    - `broadband`: no single frequency describes the motion (random or earthquake-type
+        records): `peak_share < 0.5` or `bandwidth_Hz > 4 * peak_Hz`. Check the estimate,
+        or give the window.
     """
 
     window_s: float
@@ -137,7 +139,7 @@ def _choose_window(t: np.ndarray, x: np.ndarray, polyorder: int, smallest: int) 
     e, w = best
     rel = float(np.sqrt(e / v_ms)) if v_ms > 0 else 0.0
     return VelocityWindow(w * dt, w, f_band, f_peak, share, float(np.sqrt(sp.noise)), rel,
-                          share < 0.5)
+                          is_broadband(sp))
 
 
 def _check_record(t: np.ndarray, x: np.ndarray, polyorder: int) -> tuple[np.ndarray, np.ndarray,
