@@ -231,6 +231,28 @@ def test_layout_c_bare_columns_and_named_columns_agree(tmp_path):
         assert ca.current == cb.current
 
 
+def test_headerless_text_tolerates_what_the_spec_does_not_use(tmp_path):
+    t, x, v = motion(1500)
+    f = tanh_force(x, v, 0.5)
+    lines = ["time disp vel force status", "s mm mm/s N -"]
+    lines += [f"{_r(a)};{_r(b * 1e3)};{_r(c * 1e3)};{_r(d)};{'ok' if k % 7 else 'n/a'};"
+              for k, (a, b, c, d) in enumerate(zip(t, x, v, f))]
+    (tmp_path / "run.dat").write_text("\n".join(lines) + "\n\n")
+    spec = md.DataSpec.from_options(columns="time=0:s,displacement=1:mm,velocity=2:mm/s,force=3:N",
+                                    current=0.5)
+    (c,) = md.load(tmp_path / "run.dat", spec=spec)
+    np.testing.assert_allclose(c.x, x, rtol=1e-14, atol=1e-18)
+    np.testing.assert_allclose(c.xdot, v, rtol=1e-14, atol=1e-17)
+    assert c.current == 0.5
+    notes = " | ".join(c.notes)
+    assert "line(s) 1, 2 not data (skipped)" in notes and "column(s) 4 not used" in notes
+    assert md.find_files(tmp_path) == [tmp_path / "run.dat"]
+    lines[700] = lines[700].replace(";", ";x", 1)
+    (tmp_path / "run.dat").write_text("\n".join(lines) + "\n")
+    _raises(lambda: md.load(tmp_path / "run.dat", spec=spec), "run.dat", "line 701",
+            "column 1 (displacement)", "not a number")
+
+
 # --------------------------------------------------------------------------------------------
 # The spec object
 

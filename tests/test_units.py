@@ -78,9 +78,9 @@ def test_quantity_strings():
         ("mm", "velocity", "is not a velocity"),
         ("V", "current", "is not a current (it is a voltage unit)"),
         ("N", "command", "is not a current or a voltage"),
-        ("furlongz", "length", "'furlongz' is not a unit mrjax knows"),
-        ("", "length", "is not a unit mrjax knows"),
-        ("mm)", "length", "is not a unit mrjax knows"),
+        ("furlongz", "length", "unknown unit 'furlongz' for displacement; a length unit is"),
+        ("", "length", "unknown unit '' for displacement"),
+        ("mm)", "length", "unknown unit 'mm)'"),
     ],
 )
 def test_wrong_dimension_is_one_clear_line(unit, quantity, needle):

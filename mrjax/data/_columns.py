@@ -74,8 +74,15 @@ class Column:
     def parse(cls, text: str | int | Column, *, where: str = "") -> Column:
         """Parse `"SOURCE:UNIT"`: `"Disp:cm"`, `"data[1]:N"`, `"3:mm"`, `"displacement_mm"`.
 
-        The unit follows the last `:`; it may be left out where the name carries it (a CSV
-        suffix such as `force_kN`) and for a `condition` column. An int is a bare index.
+        **Arguments:**
+
+        - `text`: the column as written. The unit follows the last `:`; it may be left out
+            where the name carries it (a CSV suffix such as `force_kN`) and for a `condition`
+            column. An int is a bare column index; a `Column` is returned as is.
+        - `where`: the option or file, for messages.
+
+        **Returns:** the :class:`Column` (its unit is checked against a role by
+        :class:`DataSpec`).
         """
         if isinstance(text, Column):
             return text
@@ -172,7 +179,8 @@ class Meta:
             object.__setattr__(self, "label", str(self.label))
 
     def merged(self, other: Meta) -> Meta:
-        """These values, with the ones `other` sets taking precedence."""
+        """**Returns:** these values, with the ones `other` sets (not `None`) taking
+        precedence."""
         return Meta(**{f.name: getattr(other, f.name) if getattr(other, f.name) is not None
                        else getattr(self, f.name) for f in dataclasses.fields(Meta)})
 

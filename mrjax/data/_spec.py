@@ -134,7 +134,8 @@ class DataSpec:
             if not wide:
                 raise InputError(
                     f"{where}: per-test values ({len(wide_meta)}) need a wide layout (one test "
-                    f"per column); for several files use [files]"
+                    f"per column); for several files give FILE=VALUE pairs ([files] in a spec "
+                    f"file)"
                 )
             n = lengths.pop() if lengths else 0
             if len(wide_meta) != n:
@@ -172,16 +173,25 @@ class DataSpec:
                 and not self.files and self.velocity_window is None)
 
     def replace(self, **changes: Any) -> DataSpec:
-        """A copy with fields replaced (`dataclasses.replace`), checked again."""
+        """A copy with fields replaced, checked again.
+
+        **Arguments:** `**changes`: field values, as for the constructor (e.g.
+        `velocity_window=0.02`, `meta=Meta(current=0.5)`).
+
+        **Returns:** the new :class:`DataSpec`.
+        """
         return dataclasses.replace(self, **changes)
 
     def merged(self, other: DataSpec | None) -> DataSpec:
         """This spec with every key that `other` sets overriding it (e.g. command-line options
         over a spec file).
 
-        Per key: a role of `other.columns` replaces that role here (in `columns` or `wide`); a
-        wide layout of `other` replaces this one; metadata override per field, per file
-        pattern; a set velocity window replaces this one.
+        **Arguments:** `other`: the overriding spec (`None`: nothing to override).
+
+        **Returns:** the merged :class:`DataSpec`. Per key: a role of `other.columns` replaces
+        that role here (in `columns` or `wide`); a wide layout of `other` replaces this one
+        (with its per-test values, or these if it has none); metadata override per field and
+        per file pattern; a set velocity window replaces this one.
         """
         if other is None:
             return self
@@ -204,7 +214,12 @@ class DataSpec:
         )
 
     def with_options(self, **options: Any) -> DataSpec:
-        """`self.merged(DataSpec.from_options(**options))`: options override single keys."""
+        """Options override single keys: `self.merged(DataSpec.from_options(**options))`.
+
+        **Arguments:** `**options`: as for :meth:`from_options` (`None` = not given).
+
+        **Returns:** the merged :class:`DataSpec`.
+        """
         return self.merged(DataSpec.from_options(**options))
 
     def to_toml(self) -> str:
@@ -243,7 +258,13 @@ class DataSpec:
         return "\n".join(out)
 
     def file_meta(self, path: PathLike) -> Meta:
-        """`meta` merged with every `files` pattern that matches `path` (in order)."""
+        """The metadata of one file.
+
+        **Arguments:** `path`: the file (matched by name, name without extension, or path).
+
+        **Returns:** `meta` merged with every `files` pattern that matches `path` (in order,
+        later patterns winning).
+        """
         meta = self.meta
         for pattern, m in self.files.items():
             if _matches(pattern, path):

@@ -132,7 +132,8 @@ def check_unit(unit: str, quantity: str, *, what: str, where: str = "") -> float
     **Returns:** the factor that converts a value in `unit` to SI (e.g. 0.0254 for `"in"`).
 
     Raises :class:`mrjax.InputError` with one line such as
-    `"f.csv: displacement unit 'N' is not a length"` or `"... unknown unit 'foo'"`.
+    `"f.csv: displacement unit 'N' is not a length ..."` or
+    `"f.csv: unknown unit 'foo' for displacement; ..."`.
     """
     if quantity not in _QUANTITIES:
         raise InputError(f"unknown quantity {quantity!r}; known: {', '.join(_QUANTITIES)}")
@@ -143,7 +144,8 @@ def check_unit(unit: str, quantity: str, *, what: str, where: str = "") -> float
     parsed = _parse(text) if text else None
     if parsed is None:
         raise InputError(
-            f"{prefix} {str(unit)!r} is not a unit mrjax knows; a {noun} unit is e.g. "
+            f"{where + ': ' if where else ''}unknown unit {str(unit)!r}"
+            f"{' for ' + what if what else ''}; a {noun} unit is e.g. "
             f"{', '.join(_COMMON[quantity])}"
         )
     _, factor, dim = parsed
