@@ -455,6 +455,18 @@ def test_metadata_precedence_and_file_names(tmp_path):
     assert c.current == 2.0 and c.frequency == 1.0
 
 
+def test_file_content_beats_the_file_name(tmp_path):
+    t, x, v = motion(600)
+    rows = ["current_A,time_s,displacement_mm,force_N"] + [
+        f"0.5,{_r(a)},{_r(b * 1e3)},{_r(c)}" for a, b, c in zip(t, x, tanh_force(x, v, 0.5))]
+    (tmp_path / "10mm1Hz1A.csv").write_text("\n".join(rows) + "\n")
+    spec = md.DataSpec.from_options(velocity_window=0.011)
+    (c,) = md.load(tmp_path / "10mm1Hz1A.csv", spec=spec)
+    assert (c.current, c.frequency, c.amplitude) == (0.5, 1.0, 0.010)  # column, name, name
+    (c,) = md.load(tmp_path / "10mm1Hz1A.csv", spec=spec.with_options(current=2))
+    assert c.current == 2.0  # the spec beats both
+
+
 def test_empty_spec_is_todays_behaviour(tmp_path):
     t, x, v = motion(500)
     np.savetxt(tmp_path / "8mm1Hz0x5A.txt", np.column_stack([t, x * 1e3, tanh_force(x, v, 0.5)]))

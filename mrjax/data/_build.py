@@ -81,11 +81,14 @@ def assemble(
     wide_meta: Sequence[Meta] = (),
     window_s: float | None = None,
     strict: bool,
+    fallback: Meta = Meta(),
 ) -> list[Condition]:
     """The conditions of one read file (see the module notes).
 
-    `meta` is the file's metadata from the caller (spec over file name); `wide_meta` one Meta
-    per test of the wide layout; `window_s` the velocity window (None: automatic).
+    Metadata, strongest first: `wide_meta` (one Meta per test of the wide layout), `meta` (the
+    caller's: spec and arguments), the file's own (`read.file_meta`, then metadata columns),
+    `fallback` (the file name), and in spec mode estimates. `window_s` is the velocity window
+    (None: automatic).
     """
     where = read.where
     roles = set(read.columns) | set(read.wide)
@@ -127,12 +130,13 @@ def assemble(
                 label = _label(key, [str(j)] if j is not None else [])
             else:
                 label = _label(m.label if m.label is not None else read.stem, parts)
-            out.append(_one(read, cols, idx, key, m, label, source, window_s, strict))
+            out.append(_one(read, cols, idx, key, m, fallback, label, source, window_s, strict))
     return out
 
 
 def _one(read: _Read, cols: Mapping[str, Column], idx: np.ndarray, key: str | None, meta: Meta,
-         label: str, source: str, window_s: float | None, strict: bool) -> Condition:
+         fallback: Meta, label: str, source: str, window_s: float | None,
+         strict: bool) -> Condition:
     notes = list(read.notes)
     sig = {r: _signal(read, c, r, idx) for r, c in cols.items() if r in SIGNAL_ROLES}
     values = dict(current=meta.current, frequency=meta.frequency, amplitude=meta.amplitude)
@@ -152,6 +156,9 @@ def _one(read: _Read, cols: Mapping[str, Column], idx: np.ndarray, key: str | No
             command, unit = sig["current"], "A"
             notes.append(f"current varies within the test ({np.min(command):g} to "
                          f"{np.max(command):g} A): kept as a per-sample command")
+    for name in ("current", "frequency", "amplitude"):
+        if values[name] is None:
+            values[name] = getattr(fallback, name)
     if "command" in cols and not (not strict and np.all(np.isnan(sig["command"]))):
         command, unit = sig["command"], command_unit(cols["command"].unit)
     if "time" in sig:

@@ -79,19 +79,15 @@ def parse_label(name: PathLike) -> tuple[float, float, float]:
     return amplitude, frequency, current
 
 
-def name_meta(path: PathLike, given: Meta, *, strict: bool) -> Meta:
-    """`given` completed from the file name where it lacks current, frequency or amplitude.
-
-    Strict (the loaders without a spec): a name that does not parse is an error naming the
-    missing keywords. Otherwise it leaves them unknown.
-    """
+def name_meta(path: PathLike, given: Meta) -> Meta:
+    """`given` completed from the file name where it lacks current, frequency or amplitude
+    (the loaders without a spec). A name that does not parse is an error naming the missing
+    keywords."""
     if given.current is not None and given.frequency is not None and given.amplitude is not None:
         return given
     try:
         amplitude, frequency, current = parse_label(path)
     except InputError:
-        if not strict:
-            return given
         missing = ", ".join(f"{k}=" for k in ("current", "frequency", "amplitude")
                             if getattr(given, k) is None)
         raise InputError(
@@ -100,6 +96,16 @@ def name_meta(path: PathLike, given: Meta, *, strict: bool) -> Meta:
             f"pass {missing} or parse_name=False"
         ) from None
     return Meta(current=current, frequency=frequency, amplitude=amplitude).merged(given)
+
+
+def label_meta(path: PathLike) -> Meta:
+    """Current, frequency and amplitude read from a file name, or nothing if it does not parse
+    (the weakest source of metadata when a spec is given)."""
+    try:
+        amplitude, frequency, current = parse_label(path)
+    except InputError:
+        return Meta()
+    return Meta(current=current, frequency=frequency, amplitude=amplitude)
 
 
 def find_files(paths: PathLike | Sequence[PathLike]) -> list[Path]:

@@ -29,7 +29,7 @@ from .._errors import InputError
 from ._build import assemble
 from ._condition import Batch, Condition, make_batch
 from ._csv import load_csv, read_csv
-from ._files import PathLike, find_files, name_meta
+from ._files import PathLike, find_files, label_meta
 from ._mat import load_mat, read_mat
 from ._spec import DataSpec, _matches
 from ._text import load_txt, read_text
@@ -60,9 +60,8 @@ def load_file(path: PathLike, spec: DataSpec) -> list[Condition]:
         raise InputError(f"{path}: unknown file type {suffix or '(none)'!r}")
     columns = dict(spec.columns) if (spec.columns or spec.wide) else None
     read = _READERS[suffix](path, columns=columns, wide=spec.wide, strict=False)
-    meta = name_meta(path, read.file_meta.merged(spec.file_meta(path)), strict=False)
-    return assemble(read, meta=meta, wide_meta=spec.wide_meta, window_s=spec.velocity_window,
-                    strict=False)
+    return assemble(read, meta=spec.file_meta(path), wide_meta=spec.wide_meta,
+                    window_s=spec.velocity_window, strict=False, fallback=label_meta(path))
 
 
 def load(

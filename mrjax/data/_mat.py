@@ -298,5 +298,5 @@ def load_mat(
                                  if r in variables})
     meta = read.file_meta.merged(given)
     if parse_name:
-        meta = name_meta(path, meta, strict=True)
+        meta = name_meta(path, meta)
     return assemble(read, meta=meta, window_s=velocity_window_s, strict=True)

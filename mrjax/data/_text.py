@@ -228,6 +228,6 @@ def load_txt(
     except InputError as e:
         raise InputError(f"{where}: {e}") from None
     read = read_text(path, columns=None, strict=True, units=units)
-    meta = name_meta(path, given, strict=True) if parse_name else given
+    meta = name_meta(path, given) if parse_name else given
     (cond,) = assemble(read, meta=meta, window_s=velocity_window_s, strict=True)
     return cond
