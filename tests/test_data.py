@@ -86,10 +86,15 @@ def test_units():
                 "current_A", "current_mA", "frequency_Hz"):
         assert col in md.column_names()
         md.parse_column(col)
-    _raises(lambda: md.to_si(1.0, "inch", quantity="length", name="column 'x'"),
-            "column 'x'", "'inch'", "m, mm")
-    _raises(lambda: md.parse_column("displacement_in", where="f.csv"),
-            "f.csv", "displacement_in", "'in'", "displacement_mm")
+    # Through pint, any unit of the right dimension: inches now convert (hand value 25.4 mm).
+    assert md.to_si(2.0, "inch", quantity="length") == pytest.approx(0.0508, rel=1e-15)
+    assert md.parse_column("displacement_in", where="f.csv") == ("displacement", "in")
+    _raises(lambda: md.to_si(1.0, "N", quantity="length", name="column 'x'"),
+            "column 'x'", "'N'", "not a length", "m, mm")
+    _raises(lambda: md.to_si(1.0, "furlongz", quantity="length", name="column 'x'"),
+            "column 'x'", "'furlongz'", "m, mm")
+    _raises(lambda: md.parse_column("displacement_N", where="f.csv"),
+            "f.csv", "displacement_N", "'N'", "not a length", "m, mm")
     _raises(lambda: md.parse_column("temperature_C", where="f.csv"), "temperature_C", "force_N")
     _raises(lambda: md.parse_column("force", where="f.csv"), "'force'", "unit", "force_N")
 
@@ -162,7 +167,9 @@ def test_utfsm_single_file(utfsm):
     np.testing.assert_allclose(c.xdot, raw[:, 2] * 1e-3)
     np.testing.assert_allclose(c.force, raw[:, 3])
     # Same data stated in SI: units override.
-    c2 = md.load_txt(utfsm / "25mm0x1Hz0x75A.txt", units=("s", "m", "m/s", "N"), current=2.0)
+    with pytest.warns(RuntimeWarning, match="48.9 m peak to peak, more than a damper stroke"):
+        c2 = md.load_txt(utfsm / "25mm0x1Hz0x75A.txt", units=("s", "m", "m/s", "N"),
+                         current=2.0)
     np.testing.assert_allclose(c2.x, raw[:, 1])
     assert c2.current == 2.0 and c2.frequency == 0.1
 
@@ -404,15 +411,14 @@ def test_bad_columns(tmp_path):
                       _HEADER + ["temperature_C"])
     _raises(lambda: md.load_csv(path), "u.csv", "unknown column 'temperature_C'", "force_N")
     path = _write_csv(tmp_path / "unit.csv", _csv_rows(),
-                      ["condition", "current_A", "time_s", "displacement_in", "force_N"])
-    _raises(lambda: md.load_csv(path), "unit.csv", "displacement_in", "'in'",
-            "displacement_m, displacement_mm")
+                      ["condition", "current_A", "time_s", "displacement_N", "force_N"])
+    _raises(lambda: md.load_csv(path), "unit.csv", "displacement_N", "'N'", "not a length")
     path = _write_csv(tmp_path / "dup.csv", [r + [r[3]] for r in _csv_rows()],
                       _HEADER + ["displacement_mm"])
     _raises(lambda: md.load_csv(path), "dup.csv", "displacement_m", "displacement_mm")
     path = _txt(tmp_path / "8mm1Hz0A.txt", _good_table())
-    _raises(lambda: md.load_txt(path, units=("s", "in", "mm/s", "N")), "8mm1Hz0A.txt",
-            "displacement", "'in'", "m, mm")
+    _raises(lambda: md.load_txt(path, units=("s", "N", "mm/s", "N")), "8mm1Hz0A.txt",
+            "displacement", "'N'", "not a length", "m, mm")
     _raises(lambda: md.load_txt(path, units=("s", "mm")), "8mm1Hz0A.txt", "4 units")
     path = _txt(tmp_path / "8mm1Hz0A.txt", _good_table()[:, :2])
     _raises(lambda: md.load_txt(path), "8mm1Hz0A.txt", "found 2")

@@ -193,8 +193,13 @@ def _unknown_column(tmp):
 
 
 def _unknown_unit(tmp):
-    header = [h if h != "displacement_mm" else "displacement_in" for h in CSV_HEADER]
+    header = [h if h != "displacement_mm" else "displacement_furlongz" for h in CSV_HEADER]
     return Bad([write_csv(tmp / "inch.csv", csv_rows([SMALL.condition(0)]), header)])
+
+
+def _wrong_dimension(tmp):
+    header = [h if h != "displacement_mm" else "displacement_N" for h in CSV_HEADER]
+    return Bad([write_csv(tmp / "newton.csv", csv_rows([SMALL.condition(0)]), header)])
 
 
 def _non_numeric_csv(tmp):
@@ -341,7 +346,10 @@ BAD_INPUT = [
     ("header-only", _header_only, ("header.csv", "header only, no data rows")),
     ("missing-column", _missing_column, ("noforce.csv", "missing required column force_")),
     ("unknown-column", _unknown_column, ("temp.csv", "unknown column 'temperature_C'")),
-    ("unknown-unit", _unknown_unit, ("inch.csv", "'displacement_in'", "unknown unit 'in'")),
+    ("unknown-unit", _unknown_unit, ("inch.csv", "'displacement_furlongz'",
+                                     "unknown unit 'furlongz'")),
+    ("wrong-dimension", _wrong_dimension, ("newton.csv", "'displacement_N'",
+                                           "displacement unit 'N' is not a length")),
     ("non-numeric-csv", _non_numeric_csv, ("text.csv", "line 11", "'force_N'", "'12.5N'")),
     ("non-numeric-txt", _non_numeric_txt, ("8mm1Hz0A.txt", "line 3", "column 3 (xdot)", "'abc'")),
     ("non-increasing-time", _non_increasing_time,

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from .._errors import InputError
-from ..data import Batch, expand_paths, load, make_batch
+from ..data import Batch, find_files, load, make_batch
 from ..models import AbstractModel, check_bounds
 
 DEFAULT_OUT = "mrjax-out"
@@ -101,7 +101,7 @@ def parse_bounds(items: list[str] | None, model: AbstractModel) -> tuple[dict, d
 
 def load_batch(paths: list[str]) -> Batch:
     """Expand files/directories, say how many, load them into one padded batch."""
-    files = expand_paths(paths)
+    files = find_files(paths)
     say(f"loading {len(files)} file{'s' if len(files) != 1 else ''}...")
     return make_batch(load(files))
 

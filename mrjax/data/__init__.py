@@ -1,17 +1,30 @@
-"""Test-condition data: conditions, padded batches, loaders, units, velocity, synthetic grid."""
+"""Test-condition data: conditions, padded batches, data specs, loaders, units, velocity,
+sanity checks, reports and the synthetic grid."""
 
+from ._checks import check_condition as check_condition
+from ._columns import ROLES as ROLES
+from ._columns import Column as Column
+from ._columns import Meta as Meta
+from ._condition import COMMAND_UNITS as COMMAND_UNITS
+from ._condition import ESTIMATED_FIELDS as ESTIMATED_FIELDS
 from ._condition import Batch as Batch
 from ._condition import Condition as Condition
 from ._condition import make_batch as make_batch
-from ._loaders import DATA_SUFFIXES as DATA_SUFFIXES
-from ._loaders import default_data_dir as default_data_dir
-from ._loaders import expand_paths as expand_paths
+from ._csv import load_csv as load_csv
+from ._describe import ConditionReport as ConditionReport
+from ._describe import describe as describe
+from ._files import DATA_SUFFIXES as DATA_SUFFIXES
+from ._files import default_data_dir as default_data_dir
+from ._files import find_files as find_files
+from ._files import parse_label as parse_label
+from ._frame import from_frame as from_frame
+from ._frame import to_frame as to_frame
 from ._loaders import load as load
 from ._loaders import load_batch as load_batch
-from ._loaders import load_csv as load_csv
-from ._loaders import load_mat as load_mat
-from ._loaders import load_txt as load_txt
-from ._loaders import parse_label as parse_label
+from ._loaders import load_file as load_file
+from ._mat import load_mat as load_mat
+from ._spec import DataSpec as DataSpec
+from ._spectrum import estimate_motion as estimate_motion
 from ._synthetic import PAPER_COEFFICIENTS as PAPER_COEFFICIENTS
 from ._synthetic import PAPER_CURRENTS as PAPER_CURRENTS
 from ._synthetic import PAPER_MOTIONS as PAPER_MOTIONS
@@ -20,10 +33,15 @@ from ._synthetic import paper_parameters as paper_parameters
 from ._synthetic import paper_truth as paper_truth
 from ._synthetic import simulate as simulate
 from ._synthetic import sine_excitation as sine_excitation
+from ._text import load_txt as load_txt
 from ._units import COLUMN_QUANTITIES as COLUMN_QUANTITIES
 from ._units import UNITS as UNITS
+from ._units import check_unit as check_unit
 from ._units import column_names as column_names
 from ._units import parse_column as parse_column
+from ._units import quantity_value as quantity_value
 from ._units import to_si as to_si
 from ._units import unit_scale as unit_scale
+from ._velocity import VelocityWindow as VelocityWindow
 from ._velocity import estimate_velocity as estimate_velocity
+from ._velocity import velocity_window as velocity_window

@@ -4,9 +4,10 @@ A :class:`Condition` is one measured (or simulated) test on the host, in SI unit
 :class:`Batch` stacks conditions of different lengths and sample rates into `(C, T)` arrays,
 padded at the end and masked, so that fitting code can `vmap` over conditions.
 
-Padding holds the displacement at its last value with zero velocity and force; the padded
-sample interval repeats the last real one. Causal models (all ODE models here) therefore never
-see padding before the real samples end, and the mask removes it from every fitness.
+Padding holds the displacement (and the per-sample command, if any) at its last value with
+zero velocity and force; the padded sample interval repeats the last real one. Causal models
+(all ODE models here) therefore never see padding before the real samples end, and the mask
+removes it from every fitness.
 """
 
 from __future__ import annotations
@@ -18,9 +19,16 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from .._errors import InputError
+
+#: Units of a per-sample command, indexed by `Batch.command_kind`: 0 none, 1 current [A],
+#: 2 voltage [V].
+COMMAND_UNITS: tuple[str | None, ...] = (None, "A", "V")
+#: Fields of a condition that a loader may have estimated rather than read (columns of
+#: `Batch.estimated`).
+ESTIMATED_FIELDS: tuple[str, ...] = ("xdot", "frequency", "amplitude")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -38,6 +46,20 @@ class Condition:
     - `xdot`: velocity [m/s], shape (T,).
     - `force`: measured force [N], shape (T,).
     - `source`: where it came from (file path), for error messages.
+    - `command`: a per-sample command signal, shape (T,), or `None`: a measured coil current
+        [A] or a command voltage [V] (see `command_unit`). Kept through batching; unused by the
+        fit of constant-current models.
+    - `command_unit`: `"A"` (current) or `"V"` (voltage) when there is a `command`, else `None`.
+    - `estimated`: names of the fields that were estimated rather than read: a subset of
+        `{"xdot", "frequency", "amplitude"}` (velocity from displacement, frequency and
+        amplitude from the spectrum; see `mrjax.data.estimate_motion`).
+    - `notes`: what the loader tolerated or decided (skipped lines, unused columns, the
+        velocity window), one line each; shown by `mrjax.data.describe`.
+    - `warnings`: the loader's warnings about this condition (a likely unit mix-up, a
+        broadband record whose velocity was estimated), one line each, also issued as
+        `RuntimeWarning`s.
+
+    The first nine fields may be given positionally, in this order.
     """
 
     label: str
@@ -49,11 +71,17 @@ class Condition:
     xdot: np.ndarray
     force: np.ndarray
     source: str = ""
+    command: np.ndarray | None = None
+    command_unit: str | None = None
+    estimated: frozenset[str] = frozenset()
+    notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     def __post_init__(self):
         where = self.source or self.label
         arrays = {}
-        for name in ("t", "x", "xdot", "force"):
+        names = ("t", "x", "xdot", "force") + (("command",) if self.command is not None else ())
+        for name in names:
             a = np.asarray(getattr(self, name), dtype=float)
             if a.ndim != 1:
                 raise InputError(f"{where}: column {name} must be one-dimensional, got shape {a.shape}")
@@ -95,6 +123,23 @@ class Condition:
             v.setflags(write=False)
             object.__setattr__(self, k, v)
         object.__setattr__(self, "label", str(self.label))
+        if (self.command is None) != (self.command_unit is None) or (
+            self.command_unit not in COMMAND_UNITS
+        ):
+            raise InputError(
+                f"{where}: a command needs command_unit 'A' (current) or 'V' (voltage), and "
+                f"command_unit needs a command; got command_unit={self.command_unit!r}"
+            )
+        estimated = frozenset(self.estimated)
+        unknown = sorted(estimated - set(ESTIMATED_FIELDS))
+        if unknown:
+            raise InputError(
+                f"{where}: estimated names unknown field(s) {', '.join(unknown)}; "
+                f"allowed: {', '.join(ESTIMATED_FIELDS)}"
+            )
+        object.__setattr__(self, "estimated", estimated)
+        object.__setattr__(self, "notes", tuple(str(n) for n in self.notes))
+        object.__setattr__(self, "warnings", tuple(str(n) for n in self.warnings))
 
     @property
     def n_samples(self) -> int:
@@ -116,9 +161,12 @@ class Condition:
         def f(v, unit, scale=1.0):
             return "?" if v is None else f"{v * scale:g} {unit}"
 
+        est = f", estimated={sorted(self.estimated)}" if self.estimated else ""
+        cmd = f", command [{self.command_unit}]" if self.command is not None else ""
         return (
             f"Condition({self.label!r}, i={f(self.current, 'A')}, f={f(self.frequency, 'Hz')}, "
-            f"A={f(self.amplitude, 'mm', 1e3)}, T={self.n_samples}, fs={self.sample_rate:g} Hz)"
+            f"A={f(self.amplitude, 'mm', 1e3)}, T={self.n_samples}, fs={self.sample_rate:g} Hz"
+            f"{cmd}{est})"
         )
 
 
@@ -131,7 +179,11 @@ class Batch(eqx.Module):
 
     Arrays (all `(C, T)` unless stated): `t` [s], `x` [m], `xdot` [m/s], `force` [N],
     `dt` [s] (interval after each sample), `mask` (True on real samples); `current` [A],
-    `frequency` [Hz], `amplitude` [m] of shape (C,), NaN where unknown. `labels` is static.
+    `frequency` [Hz], `amplitude` [m] of shape (C,), NaN where unknown; `command` the
+    per-sample command (A or V; 0 where a condition has none, its last value on padding) with
+    `command_kind` (C,) int: an index into `mrjax.data.COMMAND_UNITS` (0 none, 1 current [A],
+    2 voltage [V]); `estimated` (C, 3) bool: whether `xdot`, `frequency`, `amplitude` (the
+    columns of `mrjax.data.ESTIMATED_FIELDS`) were estimated. `labels` is static.
     """
 
     t: Float[Array, "C T"]
@@ -143,6 +195,9 @@ class Batch(eqx.Module):
     current: Float[Array, " C"]
     frequency: Float[Array, " C"]
     amplitude: Float[Array, " C"]
+    command: Float[Array, "C T"]
+    command_kind: Int[Array, " C"]
+    estimated: Bool[Array, "C 3"]
     labels: tuple[str, ...] = eqx.field(static=True)
 
     @property
@@ -160,6 +215,11 @@ class Batch(eqx.Module):
         """Real samples per condition, shape (C,)."""
         return np.asarray(self.mask).sum(axis=1)
 
+    @property
+    def has_command(self) -> np.ndarray:
+        """Whether each condition carries a per-sample command, shape (C,) bool."""
+        return np.asarray(self.command_kind) > 0
+
     def __len__(self) -> int:
         return self.n_conditions
 
@@ -174,9 +234,13 @@ class Batch(eqx.Module):
             v = float(np.asarray(a[i]))
             return None if math.isnan(v) else v
 
+        unit = COMMAND_UNITS[int(np.asarray(self.command_kind[i]))]
+        est = np.asarray(self.estimated[i])
         return Condition(
             self.labels[i], meta(self.current), meta(self.frequency), meta(self.amplitude),
             g(self.t), g(self.x), g(self.xdot), g(self.force),
+            command=None if unit is None else g(self.command), command_unit=unit,
+            estimated=frozenset(n for n, e in zip(ESTIMATED_FIELDS, est) if e),
         )
 
     def conditions(self) -> list[Condition]:
@@ -216,8 +280,10 @@ def make_batch(
     if T < longest:
         raise InputError(f"length={T} is shorter than the longest condition ({longest} samples)")
     C = len(conditions)
-    out = {k: np.zeros((C, T)) for k in ("t", "x", "xdot", "force", "dt")}
+    out = {k: np.zeros((C, T)) for k in ("t", "x", "xdot", "force", "dt", "command")}
     mask = np.zeros((C, T), dtype=bool)
+    kind = np.zeros(C, dtype=np.int32)
+    estimated = np.zeros((C, len(ESTIMATED_FIELDS)), dtype=bool)
     for i, c in enumerate(conditions):
         n = c.n_samples
         dt = c.dt
@@ -230,6 +296,11 @@ def make_batch(
         out["dt"][i, :n] = dt
         out["dt"][i, n:] = dt[-1]
         mask[i, :n] = True
+        if c.command is not None:
+            out["command"][i, :n] = c.command
+            out["command"][i, n:] = c.command[-1]
+            kind[i] = COMMAND_UNITS.index(c.command_unit)
+        estimated[i] = [name in c.estimated for name in ESTIMATED_FIELDS]
     fdt = dtype if dtype is not None else jnp.zeros(()).dtype
 
     def meta(name):
@@ -241,5 +312,7 @@ def make_batch(
         current=meta("current"),
         frequency=meta("frequency"),
         amplitude=meta("amplitude"),
+        command_kind=jnp.asarray(kind),
+        estimated=jnp.asarray(estimated),
         labels=tuple(c.label for c in conditions),
     )

@@ -1,0 +1,103 @@
+"""Sanity checks that catch the classic unit mistakes of a test record.
+
+- **Velocity against displacement.** A measured velocity should equal the derivative of the
+    displacement. If it is a constant multiple of it (least-squares ratio away from 1 by more
+    than 1.5x, correlation above 0.9), a unit was probably mixed up; the message names the
+    nearest of the usual factors (10, 100, 1000, 25.4, 2.54 and their inverses: cm/mm, m/cm,
+    m/mm, in/mm, in/cm) and the units that give it. An opposite sign is reported too.
+- **Displacement range.** A damper stroke spans roughly 0.1 mm to 1 m; a displacement that
+    spans more than 1 m or less than 10 um peak to peak is probably in the wrong unit (the
+    lower bound only for records of at least one period of their known frequency: a shorter
+    record may well move little).
+
+:func:`check_condition` returns the messages; the loaders issue them as `RuntimeWarning`s
+naming the file and keep them in `Condition.warnings`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._condition import Condition
+
+#: Largest and smallest plausible displacement span (peak to peak) of a damper test [m].
+STROKE_RANGE_M: tuple[float, float] = (1e-5, 1.0)
+#: Ratios of measured velocity to the derivative of displacement still taken as agreement.
+_AGREE = 1.5
+#: Usual unit factors and the (larger, smaller) unit pairs that give them.
+_FACTORS: dict[float, tuple[str, str]] = {
+    10.0: ("cm", "mm"), 100.0: ("m", "cm"), 1000.0: ("m", "mm"), 25.4: ("in", "mm"),
+    2.54: ("in", "cm"), 39.37007874015748: ("m", "in"),
+}
+
+
+def _factor_hint(ratio: float) -> str:
+    """Which usual factor `ratio` (measured / derivative, > 0, not ~1) is, and its units."""
+    big = ratio > 1.0
+    r = ratio if big else 1.0 / ratio
+    best = min(_FACTORS, key=lambda f: abs(math.log(r / f)))
+    if abs(math.log(r / best)) > math.log(1.15):
+        return "not a usual unit factor; check the units of both"
+    large, small = _FACTORS[best]
+    if big:
+        return (f"likely a factor {best:g}: velocity in {small}/s given as {large}/s, or "
+                f"displacement in {large} given as {small}?")
+    return (f"likely a factor 1/{best:g}: velocity in {large}/s given as {small}/s, or "
+            f"displacement in {small} given as {large}?")
+
+
+def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
+    """`(ratio, correlation)` of the measured velocity to the derivative of the displacement
+    (least-squares ratio), or None when the record is too short or the motion too small to
+    tell (fewer than 16 samples, or no displacement signal)."""
+    from ._velocity import estimate_velocity
+
+    if cond.n_samples < 16 or not np.ptp(cond.x) > 0:
+        return None
+    est = estimate_velocity(cond.t, cond.x)
+    ee = float(np.dot(est, est))
+    vv = float(np.dot(cond.xdot, cond.xdot))
+    if not (ee > 0 and vv > 0):
+        return None
+    ev = float(np.dot(est, cond.xdot))
+    return ev / ee, ev / math.sqrt(ee * vv)
+
+
+def check_condition(cond: Condition) -> list[str]:
+    """The sanity checks of one condition (see the module notes).
+
+    **Arguments:** `cond`: a :class:`Condition` (SI units).
+
+    **Returns:** one line per problem found (empty if none), without the file name.
+    """
+    out = []
+    span = float(np.ptp(cond.x))
+    lo, hi = STROKE_RANGE_M
+    if span > hi:
+        out.append(
+            f"displacement spans {span:.4g} m peak to peak, more than a damper stroke: is its "
+            f"unit right (mm given as m?)"
+        )
+    elif span < lo and (cond.frequency is None
+                        or cond.frequency * float(cond.t[-1] - cond.t[0]) >= 1.0):
+        out.append(
+            f"displacement spans {span:.3g} m peak to peak, less than {lo * 1e6:g} um: is its "
+            f"unit right (m given as mm?)"
+        )
+    if "xdot" not in cond.estimated:
+        got = velocity_ratio(cond)
+        if got is not None:
+            ratio, corr = got
+            if corr < -0.9:
+                out.append(
+                    f"measured velocity has the opposite sign of the derivative of the "
+                    f"displacement (ratio {ratio:.3g}): is one of them inverted?"
+                )
+            elif corr > 0.9 and not (1.0 / _AGREE < ratio < _AGREE):
+                out.append(
+                    f"measured velocity is {ratio:.3g} x the derivative of the displacement: "
+                    f"{_factor_hint(ratio)}"
+                )
+    return out
