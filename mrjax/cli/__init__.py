@@ -4,6 +4,8 @@
 mrjax fit DATA... --model kwok [--out DIR]          fit every test, write fit.json/csv + figures
 mrjax fit DATA... --model kwok --generalize two-step   ... plus current-dependent laws
 mrjax predict --fit DIR/fit.json DATA... [--out DIR]  evaluate the laws on other tests
+mrjax compare DATA... [--models all|kwok,...] [--hold-out current=0.25,0.75 | --folds K |
+              --validate FILES] [--out DIR]        rank every model: criteria + held-out laws
 mrjax reproduce [--quick]                           the paper's study on the embedded data
 mrjax models                                        models, parameters, units, default bounds
 ```

@@ -9,7 +9,7 @@ import warnings
 
 from .. import __version__
 from .._errors import InputError
-from . import _fit, _misc, _predict
+from . import _compare, _fit, _misc, _predict
 from ._common import one_line, show_warning
 
 #: Environment variable naming the persistent XLA compilation cache of the `mrjax` command
@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     _fit.add_parser(sub, common)
     _predict.add_parser(sub, common)
+    _compare.add_parser(sub, common)
     _misc.add_parsers(sub, common)
     return parser
 
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:  # usage errors (2), --help and --version (0)
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     debug = bool(getattr(args, "debug", False))
-    if getattr(args, "command", None) in ("fit", "predict", "reproduce"):
+    if getattr(args, "command", None) in ("fit", "predict", "reproduce", "compare"):
         enable_compilation_cache()
     try:
         with warnings.catch_warnings():

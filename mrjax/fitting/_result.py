@@ -91,6 +91,27 @@ class FitResult:
     def __len__(self) -> int:
         return self.n_conditions
 
+    def subset(self, index: Any) -> FitResult:
+        """The results of the conditions at `index` (ints or a boolean mask of length C), in
+        that order: every per-condition field is sliced, the rest (model, options, timings)
+        kept.
+
+        Each condition's swarm, statistical stop and polish ran independently of the others
+        (only its random stream depends on its position in the batch), so a subset is a valid
+        fit of those conditions; `mrjax.compare` generalizes each fold's training tests from
+        it instead of fitting them again.
+        """
+        C = self.n_conditions
+        idx = np.arange(C)[np.asarray(index)]
+        changes: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == C:
+                changes[f.name] = v[idx]
+            elif isinstance(v, tuple) and len(v) == C:
+                changes[f.name] = tuple(v[int(i)] for i in idx)
+        return dataclasses.replace(self, **changes)
+
     def params_of(self, i: int) -> dict[str, float]:
         """Parameters of condition `i` by name [SI units]."""
         return {n: float(v) for n, v in zip(self.param_names, self.theta[i])}

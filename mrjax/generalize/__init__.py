@@ -83,8 +83,10 @@ from ._generalize import generalize as generalize
 from ._inverse import inverse_current as inverse_current
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS
+from ._laws import Z_SCALE_MODELS as Z_SCALE_MODELS
 from ._laws import Law as Law
 from ._laws import canonical_z_scale as canonical_z_scale
 from ._laws import default_degrees as default_degrees
+from ._laws import group_currents as group_currents
 from ._laws import lag_current as lag_current
 from ._model import GeneralizedModel as GeneralizedModel
