@@ -157,6 +157,22 @@ class Condition:
         """Median sample rate [Hz]."""
         return float(1.0 / np.median(np.diff(self.t)))
 
+    def subsample(self, step: int = 1, stop: int | None = None) -> Condition:
+        """The condition at every `step`-th sample of its first `stop` samples (default all),
+        starting with the first: a shorter record of the same test on a coarser grid.
+
+        Nothing is filtered: the samples kept are the measured ones, so a fitness over them is
+        the fitness of the full record at those instants (a swarm searching on it scores the
+        same model output there). The command, if any, is subsampled alike.
+        """
+        step = int(step)
+        if step < 1:
+            raise InputError(f"{self.source or self.label}: subsample step must be >= 1, got {step}")
+        sl = slice(0, self.n_samples if stop is None else int(stop), step)
+        cmd = None if self.command is None else self.command[sl]
+        return dataclasses.replace(self, t=self.t[sl], x=self.x[sl], xdot=self.xdot[sl],
+                                   force=self.force[sl], command=cmd)
+
     def __repr__(self) -> str:
         def f(v, unit, scale=1.0):
             return "?" if v is None else f"{v * scale:g} {unit}"

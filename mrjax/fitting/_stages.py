@@ -30,6 +30,7 @@ from ..pso import PSOParams, default_params
 from ..refine import Uncertainty, polish, uncertainty
 from ._result import FitResult
 from ._swarm import fit_swarm
+from ._view import View, swarm_view
 
 Method = Literal["pso", "pso+lm", "lm"]
 SwarmMode = Literal["separable", "full"]
@@ -55,7 +56,8 @@ class Problem:
     """What :func:`prepare` checked and built, passed to every later stage.
 
     **Fields:** `model`; `batch` and `mask` (C, T) as placed on the devices (padded to a
-    multiple of the device count when sharded); `source` the unpadded batch; `n_real` its
+    multiple of the device count when sharded); `source` the unpadded batch; `view` the
+    swarm's subsampled view of it (see `mrjax.fitting.swarm_view`) or None; `n_real` its
     number of conditions; `lower`, `upper` (P,) bounds [SI]; `key`, `seed`; `method`,
     `swarm_mode`, `transient`, `devices`; `swarm_options` keyword arguments of
     :func:`fit_swarm`; `restarts`; `polish_steps`; `uncertainty`; `progress`; `callback`.
@@ -65,6 +67,7 @@ class Problem:
     batch: Batch
     mask: Any
     source: Batch
+    view: View | None
     n_real: int
     lower: np.ndarray
     upper: np.ndarray
@@ -179,11 +182,16 @@ def prepare(model: str | AbstractModel, data: Any, options: Mapping[str, Any]) -
     if isinstance(restarts, bool) or int(restarts) != restarts or restarts < 1:
         raise InputError(f"restarts must be an integer >= 1, got {restarts!r}")
     batch, placed_mask = _place(source, mask, devices)
+    use_view = o["swarm_view"]
+    if use_view is None:
+        use_view = model.dynamic
+    view = swarm_view(source, o["transient"]) if use_view and method != "lm" else None
     swarm_options = dict(mode=swarm_mode, bounds=(lo, hi), params=pso_params,
                          n_particles=o["n_particles"], max_generations=int(max_generations),
                          dtype=o["swarm_dtype"])
     return Problem(
-        model=model, batch=batch, mask=placed_mask, source=source, n_real=source.n_conditions,
+        model=model, batch=batch, mask=placed_mask, source=source, view=view,
+        n_real=source.n_conditions,
         lower=lo, upper=hi, key=key, seed=int(seed), method=method, swarm_mode=swarm_mode,
         transient=o["transient"], devices=devices, swarm_options=swarm_options,
         restarts=int(restarts), polish_steps=int(o["polish_steps"]),
@@ -245,10 +253,14 @@ def run_swarm(p: Problem) -> SwarmStage:
         theta = np.broadcast_to(np.clip(p.model.default_start(), p.lower, p.upper), (C, P))
         return SwarmStage(theta.copy(), np.full(C, np.nan), np.full(C, -1), np.zeros(C, bool),
                           np.zeros((C, 0)))
-    batch, mask = p.batch, p.mask
+    source = p.source if p.view is None else p.view.batch
     if p.restarts > 1:  # every condition `restarts` times: copy k of condition i at row k*n + i
-        tiled = p.source.subset(np.tile(np.arange(p.n_real), p.restarts))
-        batch, mask = _place(tiled, fit_mask(tiled, p.transient), p.devices)
+        source = source.subset(np.tile(np.arange(p.n_real), p.restarts))
+        batch, mask = _place(source, fit_mask(source, p.transient), p.devices)
+    elif p.view is not None:
+        batch, mask = _place(source, p.view.mask, p.devices)
+    else:
+        batch, mask = p.batch, p.mask
     cb, bar = _callbacks(p)
     try:
         sw = fit_swarm(p.model, batch, key=p.key, mask=mask, callback=cb, **p.swarm_options)
@@ -260,6 +272,10 @@ def run_swarm(p: Problem) -> SwarmStage:
            np.asarray(sw.result.stopped_by_criterion), np.asarray(sw.result.history))
     if p.restarts > 1:
         out = _best_restart(p.n_real, p.restarts, C, *out)
+    if p.view is not None:  # the swarm's RMS on the full record, as without a view
+        theta = out[0]
+        model = resolve_model(p.model, theta, p.batch.xdot, p.batch.dt, p.batch.mask)
+        out = (theta, rms_per_condition(model, theta, p.batch, p.mask), *out[2:])
     return SwarmStage(*out)
 
 
@@ -269,7 +285,12 @@ def run_polish(p: Problem, start: SwarmStage) -> PolishStage:
     asked)."""
     C = p.n_conditions
     if p.method in ("pso+lm", "lm"):
-        pol = polish(p.model, start.theta, p.batch, mask=p.mask, lower=p.lower, upper=p.upper,
+        theta = start.theta
+        if p.view is not None:  # converge on the swarm's view first: its steps are cheap
+            vb, vm = _place(p.view.batch, p.view.mask, p.devices)
+            theta = np.asarray(polish(p.model, theta, vb, mask=vm, lower=p.lower, upper=p.upper,
+                                      max_steps=p.polish_steps, uncertainty=False).theta)
+        pol = polish(p.model, theta, p.batch, mask=p.mask, lower=p.lower, upper=p.upper,
                      max_steps=p.polish_steps)
         return PolishStage(np.asarray(pol.theta), np.asarray(pol.steps),
                            tuple(str(s) for s in pol.status),
@@ -331,6 +352,7 @@ def fit(
     callback: Callable | None = None,
     swarm_dtype: Any = None,
     restarts: int = 1,
+    swarm_view: bool | None = None,
     swarm: SwarmMode | None = None,
 ) -> FitResult:
     """Identify `model` on every test condition of `data` at once.
@@ -367,6 +389,11 @@ def fit(
         polish the best of them. Costs `restarts` times the swarm; guards the many-parameter
         ODE models (modified Bouc-Wen) against a swarm that ends in a poor basin. The reported
         generations, stop flag and history are those of the chosen swarm. Default 1.
+    - `swarm_view`: let the swarm (and a first polish) score a subsampled copy of each record
+        (about 64 samples per period, the first whole periods up to about 1,000 samples; see
+        `mrjax.fitting.swarm_view`), then polish on the full record. `None` (default): for the
+        ODE models only, whose cost is one sequential integrator step per sample. Every
+        reported RMS, including `pso_rms`, is on the full record.
 
     The work runs in four stages (:func:`prepare`, :func:`run_swarm`, :func:`run_polish`,
     :func:`evaluate`), each timed in `FitResult.timings` [s].

@@ -157,7 +157,7 @@ def objective_at(obj, position, data):
 
 
 @eqx.filter_jit
-def polish_laws(model, kinds, sizes, Vinv, nu_start, scale, data, max_steps, rtol, atol):
+def polish_laws(model, kinds, sizes, Vinv, nu_start, scale, data, max_steps, tol):
     """Levenberg-Marquardt on every law coefficient, on the stacked residuals of all conditions
     (variables: node values `nu_start + scale * u`). Returns `(coef, total RMS [N], steps,
     status code)` (see `mrjax.refine.lm_solve`)."""
@@ -172,7 +172,7 @@ def polish_laws(model, kinds, sizes, Vinv, nu_start, scale, data, max_steps, rto
             th, x, xdot, dt, force, mask)
         return r.ravel()
 
-    sol = lm_solve(fn, jnp.zeros_like(nu_start), max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = lm_solve(fn, jnp.zeros_like(nu_start), max_steps=max_steps, tol=tol)
     coef = coef_of(sol.value)
     return coef, total_rms(model, LawSet(coef, kinds, sizes), data), sol.steps, sol.status
 
@@ -327,7 +327,7 @@ def _polish(model, batch, start, nu_start, half, coef_best, rms_best, polish_ste
         rms_best = float(total_rms(model_lm, layout.lawset(coef_best), start.data))
     coef_lm, rms_lm, steps, code = polish_laws(
         model_lm, layout.kinds, layout.sizes, jnp.asarray(layout.Vinv), jnp.asarray(nu_start),
-        jnp.asarray(half / 3.0), start.data, int(polish_steps), 1e-8, 1e-8)
+        jnp.asarray(half / 3.0), start.data, int(polish_steps), 1e-8)
     coef_lm, rms_lm = np.asarray(coef_lm), float(rms_lm)
     info.update(polish_steps=int(steps), polish_status=status_name(code))
     if np.all(np.isfinite(coef_lm)) and math.isfinite(rms_lm) and rms_lm <= rms_best:

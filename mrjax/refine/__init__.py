@@ -31,6 +31,7 @@ no larger than the start's; otherwise the start is returned with status `"kept_s
 Everything runs in float64 (mrjax enables `jax_enable_x64` on import).
 """
 
+from ._lm import DEFAULT_TOL as DEFAULT_TOL
 from ._lm import LINEAR_SOLVER as LINEAR_SOLVER
 from ._lm import STATUS_NAMES as STATUS_NAMES
 from ._lm import LMSolution as LMSolution

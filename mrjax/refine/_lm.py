@@ -11,6 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
@@ -22,6 +23,10 @@ from jaxtyping import Array, ArrayLike, Int, PyTree
 #: is slow there); $\lambda > 0$ keeps the system positive definite, float64 keeps it accurate,
 #: and a failed factorisation only makes the trust region shrink.
 LINEAR_SOLVER = lx.Normal(lx.Cholesky())
+
+#: Default stop of :func:`lm_solve`: relative RMS change per step (see there). Measured on the
+#: UTFSM tests: the RMS agrees with a 1e-8 max-norm stop to 1e-6 relative, in 2-3x fewer steps.
+DEFAULT_TOL = 1e-6
 
 #: Readable status of a solve, indexed by :attr:`LMSolution.status`.
 STATUS_NAMES: tuple[str, ...] = (
@@ -74,26 +79,37 @@ def lm_solve(
     args: Any = None,
     *,
     max_steps: int,
-    rtol: ArrayLike,
-    atol: ArrayLike,
+    tol: ArrayLike = DEFAULT_TOL,
 ) -> LMSolution:
     r"""Minimise $\tfrac12\|r(y)\|^2$ by Levenberg-Marquardt (optimistix) from `y0`.
 
     **Arguments:**
 
     - `fn`: residuals `fn(y, args) -> r` (any shape; units of the data, e.g. N).
-    - `y0`: the start (unbounded variables; callers map bounds through a reparameterisation).
+    - `y0`: the start: unbounded variables of order one (callers map bounds and scales
+        through a reparameterisation).
     - `args`: passed to `fn`.
     - `max_steps`: step cap (static).
-    - `rtol`, `atol`: optimistix's Cauchy termination tolerances on the variables and on the
-        residuals.
+    - `tol`: the stop. The residuals are divided by their root mean square at `y0`, and the
+        solve ends after an accepted step that moves both the variables and these relative
+        residuals by less than `tol` in root mean square (optimistix's Cauchy test with an
+        RMS norm). The RMS of the residuals then changes by less than a fraction `tol` per
+        step. A runtime value (no recompilation).
 
     Never raises on failure (`throw=False`): under `vmap` one failed problem reports its status
     instead of stopping the batch. Jittable.
 
     **Returns:** an :class:`LMSolution`.
     """
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=LINEAR_SOLVER)
-    sol = optx.least_squares(fn, solver, y0, args, max_steps=max_steps, throw=False)
+    r0 = jax.lax.stop_gradient(fn(y0, args))
+    scale = jnp.sqrt(jnp.mean(jnp.square(r0)))
+    scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
+
+    def relative(y, a):
+        return fn(y, a) / scale
+
+    solver = optx.LevenbergMarquardt(rtol=0.0, atol=tol, norm=optx.rms_norm,
+                                     linear_solver=LINEAR_SOLVER)
+    sol = optx.least_squares(relative, solver, y0, args, max_steps=max_steps, throw=False)
     return LMSolution(value=sol.value, steps=sol.stats["num_steps"],
                       status=_status_code(sol.result))

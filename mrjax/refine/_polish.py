@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -15,8 +17,8 @@ from ..data import Batch
 from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import check_mask, fitness, residuals
 from ._args import as_free, as_theta, require_x64
-from ._lm import lm_solve, status_name
-from ._uncertainty import Uncertainty, make_uncertainty, uncertainty_one
+from ._lm import DEFAULT_TOL, lm_solve, status_name
+from ._uncertainty import Uncertainty, make_uncertainty, uncertainty_one, undefined_uncertainty
 
 #: A start on a bound is moved this fraction of the box width inside before the solve.
 BOUND_NUDGE = 1e-3
@@ -132,8 +134,7 @@ def _snap_to_bounds(score, theta, rms, idx, lo, hi):
     return jax.lax.fori_loop(0, idx.shape[0], body, (theta, rms))
 
 
-def _polish_one(model, free_idx, max_steps, rtol, atol, theta0, lo, hi, x, xdot, dt, force,
-                mask):
+def _polish_one(model, free_idx, max_steps, tol, theta0, lo, hi, x, xdot, dt, force, mask):
     """Bounded LM on one condition from `theta0` (already inside [lo, hi])."""
     idx = np.asarray(free_idx, int)
     lo_f, hi_f = lo[idx], hi[idx]
@@ -153,7 +154,7 @@ def _polish_one(model, free_idx, max_steps, rtol, atol, theta0, lo, hi, x, xdot,
     def fn(u, _):
         return res_theta(_to_theta(u, lo_f, hi_f))
 
-    sol = lm_solve(fn, u0, max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = lm_solve(fn, u0, max_steps=max_steps, tol=tol)
     th_lm = full(_to_theta(sol.value, lo_f, hi_f))
 
     def score(th):
@@ -168,12 +169,14 @@ def _polish_one(model, free_idx, max_steps, rtol, atol, theta0, lo, hi, x, xdot,
 
 
 @eqx.filter_jit
-def _polish_core(model, free_idx, max_steps, rtol, atol, theta0, lo, hi, x, xdot, dt, force,
+def _polish_core(model, free_idx, max_steps, with_unc, tol, theta0, lo, hi, x, xdot, dt, force,
                  mask):
     def one(th0, a, b, c, f, m):
-        return _polish_one(model, free_idx, max_steps, rtol, atol, th0, lo, hi, a, b, c, f, m)
+        return _polish_one(model, free_idx, max_steps, tol, th0, lo, hi, a, b, c, f, m)
 
     theta, rms, rms0, steps, code, kept = jax.vmap(one)(theta0, x, xdot, dt, force, mask)
+    if not with_unc:
+        return (theta, rms, rms0, steps, code, kept), None
     unc = jax.vmap(lambda th, a, b, c, f, m: uncertainty_one(model, free_idx, th, a, b, c, f, m))(
         theta, x, xdot, dt, force, mask)
     return (theta, rms, rms0, steps, code, kept), unc
@@ -188,9 +191,11 @@ def polish(
     lower: Float[ArrayLike, " P"] | None = None,
     upper: Float[ArrayLike, " P"] | None = None,
     max_steps: int = 100,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
+    tol: float = DEFAULT_TOL,
     free: Bool[ArrayLike, " P"] | Sequence[str] | None = None,
+    uncertainty: bool = True,
+    rtol: float | None = None,
+    atol: float | None = None,
 ) -> Polished:
     """Refine parameters on every condition with bounded Levenberg-Marquardt.
 
@@ -213,10 +218,14 @@ def polish(
     - `lower`, `upper`: bounds (P,), SI units, finite (default `model.bounds`). A parameter
         with `lower == upper` is fixed.
     - `max_steps`: maximum LM steps per condition (static: a new value recompiles).
-    - `rtol`, `atol`: optimistix's Cauchy termination tolerances (on the scaled variables and
-        on the residuals [N]); runtime values, no recompilation.
+    - `tol`: stop after a step that changes the relative residuals and the bounded variables
+        by less than this (root mean square; the RMS then changes by less than a fraction
+        `tol` per step; see `mrjax.refine.lm_solve`). A runtime value, no recompilation.
+        `rtol` and `atol` are deprecated aliases (one release): the larger one is used.
     - `free`: (P,) bool mask or names of the parameters to fit (default all); the others are
         held at `theta0`.
+    - `uncertainty`: compute the uncertainty at the result (default); `False` skips that
+        Jacobian pass (e.g. for an intermediate polish) and reports NaN std-errors.
 
     **Returns:** a :class:`Polished` with `theta`, `rms`, `rms_start`, `steps`, `status`,
     `improved`, `kept_start`, `at_bound` and `uncertainty` (`stderr`, `cov`, `corr`, `ci95`,
@@ -225,10 +234,12 @@ def polish(
     require_x64()
     if int(max_steps) != max_steps or max_steps < 1:
         raise InputError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if not (rtol >= 0 and atol >= 0 and rtol + atol > 0):
-        raise InputError(
-            f"rtol and atol must be non-negative and not both zero, got {rtol}, {atol}"
-        )
+    if rtol is not None or atol is not None:
+        warnings.warn("polish(rtol=, atol=) are deprecated; use tol=", DeprecationWarning,
+                      stacklevel=2)
+        tol = max(float(rtol or 0.0), float(atol or 0.0))
+    if not (math.isfinite(tol) and tol > 0):
+        raise InputError(f"tol must be a positive number, got {tol!r}")
     C = batch.n_conditions
     lo, hi = check_bounds(model, (lower, upper))
     theta0 = np.clip(as_theta(model, theta0, C, "theta0"), lo, hi)
@@ -242,7 +253,7 @@ def polish(
         )
     model = resolve_model(model, theta0, batch.xdot, batch.dt, batch.mask)
     (theta, rms, rms0, steps, code, kept), unc = _polish_core(
-        model, free_idx, int(max_steps), jnp.asarray(rtol, float), jnp.asarray(atol, float),
+        model, free_idx, int(max_steps), bool(uncertainty), jnp.asarray(tol, float),
         jnp.asarray(theta0), jnp.asarray(lo), jnp.asarray(hi), batch.x, batch.xdot, batch.dt,
         batch.force, jnp.asarray(m),
     )
@@ -257,7 +268,8 @@ def polish(
         theta=theta, rms=rms, rms_start=rms0, steps=steps,
         improved=jnp.asarray(rms_np < rms0_np), kept_start=kept,
         at_bound=jnp.asarray(at_bound),
-        uncertainty=make_uncertainty(model, theta_np, unc, fit),
+        uncertainty=(make_uncertainty(model, theta_np, unc, fit) if unc is not None
+                     else undefined_uncertainty(model, theta_np, fit)),
         lower=jnp.asarray(lo), upper=jnp.asarray(hi),
         status=status, lm_status=lm_status, labels=tuple(batch.labels),
         param_names=tuple(model.param_names),

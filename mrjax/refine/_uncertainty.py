@@ -170,6 +170,19 @@ def _uncertainty_core(model, free_idx, theta, x, xdot, dt, force, mask):
     return jax.vmap(one)(theta, x, xdot, dt, force, mask)
 
 
+def undefined_uncertainty(model: AbstractModel, theta: np.ndarray, free) -> Uncertainty:
+    """An :class:`Uncertainty` at `theta` (C, P) that was not computed: NaN std-errors,
+    covariances, correlations and intervals, every parameter flagged identifiable."""
+    C, P = theta.shape
+    nan = np.full((C, P), np.nan)
+    return Uncertainty(
+        theta=jnp.asarray(theta), stderr=jnp.asarray(nan), cov=jnp.full((C, P, P), np.nan),
+        corr=jnp.full((C, P, P), np.nan), ci95=jnp.full((C, P, 2), np.nan),
+        identifiable=jnp.ones((C, P), bool), dof=jnp.zeros(C, int), sigma=jnp.full(C, np.nan),
+        param_names=tuple(model.param_names), free=tuple(bool(f) for f in free),
+    )
+
+
 def make_uncertainty(model, theta, out, free) -> Uncertainty:
     """An :class:`Uncertainty` from the batched outputs of :func:`uncertainty_one` (host)."""
     stderr, cov, corr, ident, dof, sigma = (np.asarray(a) for a in out)
