@@ -1,5 +1,6 @@
 """Shared test material: every model name, a representative parameter vector per model, Spencer's
-1997 modified Bouc-Wen set, and a sinusoidal excitation.
+1997 modified Bouc-Wen set, a sinusoidal excitation, the three file layouts of issue 14, and
+checks of the command line's outputs.
 
 All values are SI. `TRUE_PARAMS[name]` lies inside `mrjax.models.get(name).bounds` and gives forces
 of a few hundred newtons to about 1.5 kN at 2.5 Hz / 15 mm, the scale of the RD-1005-3 in Kwok
@@ -8,9 +9,16 @@ et al. (2006).
 
 from __future__ import annotations
 
+import contextlib
+import io
+import math
+from pathlib import Path
+
 import numpy as np
+import scipy.io
 
 import mrjax
+from mrjax import cli
 
 #: Every registered model, in the order of the paper.
 MODEL_NAMES: tuple[str, ...] = ("bingham", "kwok", "bouc_wen", "modified_bouc_wen", "dahl")
@@ -96,3 +104,197 @@ def draw_sine(draw, n: int, min_rate: float):
     t, x, v = mrjax.data.sine_excitation(f, amp, sample_rate=rate, cycles=cycles, phase=phase)
     assert x.shape == (n,)
     return t, x, v, rate, f, amp
+
+
+# --------------------------------------------------------------------------------------------
+# The three file layouts of issue 14 (test_data_spec.py, test_cli_data.py), written at test time
+# from the tanh model at the paper's parameters (eq 24-29) for known currents.
+
+KWOK = mrjax.models.get("kwok")
+RATE = 1000.0
+CURRENTS = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def motion(n=3000, rate=RATE, peak=0.01):
+    """A random-looking displacement [m] (7 sines, 0.3-4.1 Hz) and its analytic velocity."""
+    t = np.arange(n) / rate
+    f = np.array([0.3, 0.7, 1.1, 1.9, 2.6, 3.3, 4.1])
+    a = np.array([1.0, 0.6, 0.4, 0.3, 0.2, 0.15, 0.1])
+    ph = np.linspace(0.1, 5.0, f.size)
+    w = 2 * np.pi * f[:, None]
+    x = (a[:, None] * np.sin(w * t + ph[:, None])).sum(0)
+    v = (a[:, None] * w * np.cos(w * t + ph[:, None])).sum(0)
+    s = peak / np.max(np.abs(x))
+    return t, x * s, v * s
+
+
+def tanh_force(x, v, current, rate=RATE, noise=0.0, seed=0):
+    """The tanh model's force [N] at the paper's parameters for `current` [A] (eq 24-29),
+    plus white noise of standard deviation `noise` [N] (fixed `seed`)."""
+    f = np.asarray(KWOK.force(mrjax.data.paper_parameters(current), x, v, 1.0 / rate),
+                   dtype=float)
+    if noise:
+        f = f + noise * np.random.default_rng(seed).standard_normal(f.shape)
+    return f
+
+
+def exact(v) -> str:
+    """A float written exactly (repr)."""
+    return repr(float(v))
+
+
+def write_layout_a(path, n=3000, noise=0.0):
+    """(a) A random-displacement, random-voltage CSV: short headers, cm and cm/s, a voltage
+    column, an unused acceleration column, a sample-rate column filled only in its first row,
+    a trailing delimiter on every line and an empty last line."""
+    t, x, v = motion(n)
+    volt = 2.5 + 2.0 * np.sin(2 * np.pi * 0.37 * t) * np.cos(2 * np.pi * 1.3 * t)
+    force = tanh_force(x, v, 0.5, noise=noise)
+    lines = ["t,x,v,F,V,acc,fs,"]
+    acc = np.gradient(v, t)
+    for k in range(n):
+        fs = "1000" if k == 0 else ""
+        lines.append(f"{exact(t[k])},{exact(x[k] * 100)},{exact(v[k] * 100)},{exact(force[k])},"
+                     f"{exact(volt[k])},{exact(acc[k])},{fs},")
+    path.write_text("\n".join(lines) + "\n\n")
+    return dict(t=t, x=x, v=v, force=force, volt=volt)
+
+
+#: The option strings of layout (a) (`mrjax fit random.csv --columns ...`).
+OPTIONS_A = dict(columns="time=t:s,displacement=x:cm,velocity=v:cm/s,force=F:N,command=V:V")
+TOML_A = """
+[columns]
+time = "t:s"
+displacement = "x:cm"
+velocity = "v:cm/s"
+force = "F:N"
+command = "V:V"
+"""
+
+
+def write_layout_b(folder, n=3000, noise=0.0):
+    """(b) .mat files of a shaking-table campaign: a time vector, displacement in mm, force in
+    N and a 3-column matrix [x mm, v mm/s, F N]; names like ensaio.B.1.mat, no current."""
+    t, x, v = motion(n)
+    out = {}
+    for k, current in enumerate((0.5, 1.0), start=1):
+        force = tanh_force(x, v, current, noise=noise, seed=k)
+        name = f"ensaio.B.{k}.mat"
+        scipy.io.savemat(folder / name, {
+            "tempo": t[:, None], "desloc": x * 1e3, "forca": force,
+            "dados": np.column_stack([x * 1e3, v * 1e3, force]),
+        })
+        out[name] = dict(t=t, x=x, v=v, force=force, current=current)
+    return out
+
+
+OPTIONS_B = dict(columns="time=tempo:s,displacement=dados[0]:mm,velocity=dados[1]:mm/s,"
+                         "force=dados[2]:N",
+                 current="ensaio.B.1.mat=0.5,ensaio.B.2.mat=1")
+TOML_B = """
+[columns]
+time         = "tempo:s"
+displacement = "desloc:mm"     # the vector; velocity then estimated
+force        = "forca:N"
+
+[files."ensaio.B.1.mat"]
+current_A = 0.5
+
+[files."ensaio.B.2.mat"]
+current_mA = 1000
+"""
+
+
+def write_layout_c(path, n=3000, noise=0.0):
+    """(c) A .mat matrix with no time vector: column 0 displacement in mm, columns 1-5 force
+    at five currents (one test per column); the rate, 1 kHz, is in the lab's notes."""
+    t, x, v = motion(n)
+    forces = [tanh_force(x, v, i, noise=noise, seed=k) for k, i in enumerate(CURRENTS)]
+    scipy.io.savemat(path, {"M": np.column_stack([x * 1e3, *forces])})
+    return dict(t=t, x=x, v=v, forces=forces)
+
+
+OPTIONS_C = dict(columns="displacement=0:mm", wide="force=1,2,3,4,5:N",
+                 current="0,0.25,0.5,0.75,1", sample_rate="1000")
+TOML_C = """
+[columns]
+displacement = "0:mm"
+
+[meta]
+sample_rate_Hz = 1000
+
+[wide]
+force     = ["M[1]:N", "M[2]:N", "M[3]:N", "M[4]:N", "M[5]:N"]
+current_A = [0, 0.25, 0.5, 0.75, 1.0]
+"""
+
+# --------------------------------------------------------------------------------------------
+# The command line (test_cli.py, test_cli_data.py)
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+NoneType = type(None)
+
+
+def run_cli(argv):
+    """`mrjax.cli.main(argv)` in-process: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def snapshot(d: Path) -> dict[str, bytes]:
+    """Every file under `d` (relative name -> bytes)."""
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def one_error_line(err: str) -> str:
+    """The last stderr line, checked to be one `mrjax: error: ...` line without a traceback."""
+    lines = err.strip().splitlines()
+    assert len(lines) >= 1 and lines[-1].startswith("mrjax: error: "), err
+    assert not any("Traceback" in ln for ln in lines), err
+    return lines[-1]
+
+
+_TOP = {"model": str, "method": str, "swarm": str, "seed": int, "param_names": list,
+        "units": list, "mrjax_version": str, "conditions": list}
+_COND = {"label": str, "current_A": (float, NoneType), "frequency_Hz": (float, NoneType),
+         "amplitude_m": (float, NoneType), "n_samples": int, "params": dict, "stderr": dict,
+         "rms_N": float, "nrmse": float, "pso_rms_N": (float, NoneType),
+         "generations": (int, NoneType), "stopped_by_criterion": (bool, NoneType),
+         "polish_status": str, "polish_steps": int, "identifiable": dict, "estimated": list}
+
+
+def _is(v, types_):
+    types_ = types_ if isinstance(types_, tuple) else (types_,)
+    if isinstance(v, bool):  # bool is an int subclass: only where bool is allowed
+        return bool in types_
+    return isinstance(v, types_)
+
+
+def check_fit_schema(doc: dict, n_conditions: int) -> None:
+    """The fit.json schema of `FitResult.to_dict`: keys and types, per condition too."""
+    for key, t in _TOP.items():
+        assert key in doc, f"fit.json lacks {key!r}"
+        assert _is(doc[key], t), f"{key}: {type(doc[key]).__name__}"
+    names = doc["param_names"]
+    assert names == list(mrjax.models.get(doc["model"]).param_names)
+    assert len(doc["units"]) == len(names) and all(isinstance(u, str) for u in doc["units"])
+    assert len(doc["conditions"]) == n_conditions
+    for c in doc["conditions"]:
+        for key, t in _COND.items():
+            assert key in c, f"condition lacks {key!r}"
+            assert _is(c[key], t), f"{key}: {c[key]!r}"
+        assert list(c["params"]) == names and all(_is(v, float) for v in c["params"].values())
+        assert list(c["stderr"]) == names
+        assert all(_is(v, (float, NoneType)) for v in c["stderr"].values())
+        assert list(c["identifiable"]) == names
+        assert set(c["estimated"]) <= set(mrjax.data.ESTIMATED_FIELDS)
+        assert c["n_samples"] > 0 and math.isfinite(c["rms_N"]) and c["rms_N"] >= 0
+
+
+def check_pngs(d: Path, names) -> None:
+    """Each named file in `d` is a real PNG."""
+    for n in names:
+        data = (d / n).read_bytes()
+        assert data[:8] == PNG_MAGIC and len(data) > 2000, n

@@ -5,7 +5,6 @@ UTFSM files, 5 generations each) are shared by module fixtures; every error test
 any fitting.
 """
 
-import contextlib
 import csv
 import importlib.machinery
 import io
@@ -19,28 +18,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import PNG_MAGIC, check_fit_schema, check_pngs, one_error_line, snapshot
+from helpers import run_cli as run
 
 import mrjax
 from mrjax import InputError, cli
 from mrjax.data import paper_grid
 
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 UTFSM_FILES = ("2mm5Hz0A.txt", "2mm5Hz0x5A.txt", "2mm5Hz1A.txt")
 FIT_PNGS = {"loops.png", "rms_vs_current.png", "params_vs_current.png",
             "generations_vs_current.png", "convergence.png", "pso_vs_polish.png"}
-NoneType = type(None)
 
 
 # --------------------------------------------------------------------------------------------
 # Helpers
-
-
-def run(argv):
-    """`mrjax.cli.main(argv)` in-process: (exit code, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = cli.main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 def write_csv(path, batch):
@@ -55,59 +46,6 @@ def write_csv(path, batch):
                             *(repr(float(v)) for v in (c.t[k], c.x[k] * 1e3, c.xdot[k] * 1e3,
                                                        c.force[k]))])
     return path
-
-
-def snapshot(d: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
-
-
-def one_error_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) >= 1 and lines[-1].startswith("mrjax: error: "), err
-    assert not any("Traceback" in ln for ln in lines), err
-    return lines[-1]
-
-
-_TOP = {"model": str, "method": str, "swarm": str, "seed": int, "param_names": list,
-        "units": list, "mrjax_version": str, "conditions": list}
-_COND = {"label": str, "current_A": (float, NoneType), "frequency_Hz": (float, NoneType),
-         "amplitude_m": (float, NoneType), "n_samples": int, "params": dict, "stderr": dict,
-         "rms_N": float, "nrmse": float, "pso_rms_N": (float, NoneType),
-         "generations": (int, NoneType), "stopped_by_criterion": (bool, NoneType),
-         "polish_status": str, "polish_steps": int, "identifiable": dict}
-
-
-def _is(v, types_):
-    types_ = types_ if isinstance(types_, tuple) else (types_,)
-    if isinstance(v, bool):  # bool is an int subclass: only where bool is allowed
-        return bool in types_
-    return isinstance(v, types_)
-
-
-def check_fit_schema(doc: dict, n_conditions: int) -> None:
-    """The fit.json schema of `FitResult.to_dict`: keys and types, per condition too."""
-    for key, t in _TOP.items():
-        assert key in doc, f"fit.json lacks {key!r}"
-        assert _is(doc[key], t), f"{key}: {type(doc[key]).__name__}"
-    names = doc["param_names"]
-    assert names == list(mrjax.models.get(doc["model"]).param_names)
-    assert len(doc["units"]) == len(names) and all(isinstance(u, str) for u in doc["units"])
-    assert len(doc["conditions"]) == n_conditions
-    for c in doc["conditions"]:
-        for key, t in _COND.items():
-            assert key in c, f"condition lacks {key!r}"
-            assert _is(c[key], t), f"{key}: {c[key]!r}"
-        assert list(c["params"]) == names and all(_is(v, float) for v in c["params"].values())
-        assert list(c["stderr"]) == names
-        assert all(_is(v, (float, NoneType)) for v in c["stderr"].values())
-        assert list(c["identifiable"]) == names
-        assert c["n_samples"] > 0 and math.isfinite(c["rms_N"]) and c["rms_N"] >= 0
-
-
-def check_pngs(d: Path, names) -> None:
-    for n in names:
-        data = (d / n).read_bytes()
-        assert data[:8] == PNG_MAGIC and len(data) > 2000, n
 
 
 # --------------------------------------------------------------------------------------------

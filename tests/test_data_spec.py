@@ -11,15 +11,24 @@ import warnings
 
 import numpy as np
 import pytest
-import scipy.io
+from helpers import (
+    CURRENTS,
+    OPTIONS_A,
+    OPTIONS_B,
+    OPTIONS_C,
+    TOML_A,
+    TOML_B,
+    TOML_C,
+    motion,
+    tanh_force,
+    write_layout_a,
+    write_layout_b,
+    write_layout_c,
+)
+from helpers import exact as _r
 
-import mrjax
 import mrjax.data as md
 from mrjax._errors import InputError
-
-KWOK = mrjax.models.get("kwok")
-RATE = 1000.0
-CURRENTS = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
 def _raises(fn, *needles):
@@ -30,117 +39,6 @@ def _raises(fn, *needles):
     for n in needles:
         assert n in msg, f"{n!r} not in {msg!r}"
     return msg
-
-
-def motion(n=3000, rate=RATE, peak=0.01):
-    """A random-looking displacement [m] (7 sines, 0.3-4.1 Hz) and its analytic velocity."""
-    t = np.arange(n) / rate
-    f = np.array([0.3, 0.7, 1.1, 1.9, 2.6, 3.3, 4.1])
-    a = np.array([1.0, 0.6, 0.4, 0.3, 0.2, 0.15, 0.1])
-    ph = np.linspace(0.1, 5.0, f.size)
-    w = 2 * np.pi * f[:, None]
-    x = (a[:, None] * np.sin(w * t + ph[:, None])).sum(0)
-    v = (a[:, None] * w * np.cos(w * t + ph[:, None])).sum(0)
-    s = peak / np.max(np.abs(x))
-    return t, x * s, v * s
-
-
-def tanh_force(x, v, current, rate=RATE):
-    return np.asarray(KWOK.force(md.paper_parameters(current), x, v, 1.0 / rate), dtype=float)
-
-
-def _r(v):
-    return repr(float(v))
-
-
-# --------------------------------------------------------------------------------------------
-# The three layouts of the issue, written at test time
-
-
-def write_layout_a(path, n=3000):
-    """(a) A random-displacement, random-voltage CSV: short headers, cm and cm/s, a voltage
-    column, an unused acceleration column, a sample-rate column filled only in its first row,
-    a trailing delimiter on every line and an empty last line."""
-    t, x, v = motion(n)
-    volt = 2.5 + 2.0 * np.sin(2 * np.pi * 0.37 * t) * np.cos(2 * np.pi * 1.3 * t)
-    force = tanh_force(x, v, 0.5)
-    lines = ["t,x,v,F,V,acc,fs,"]
-    acc = np.gradient(v, t)
-    for k in range(n):
-        fs = "1000" if k == 0 else ""
-        lines.append(f"{_r(t[k])},{_r(x[k] * 100)},{_r(v[k] * 100)},{_r(force[k])},"
-                     f"{_r(volt[k])},{_r(acc[k])},{fs},")
-    path.write_text("\n".join(lines) + "\n\n")
-    return dict(t=t, x=x, v=v, force=force, volt=volt)
-
-
-#: The option strings of layout (a) (`mrjax fit random.csv --columns ...`).
-OPTIONS_A = dict(columns="time=t:s,displacement=x:cm,velocity=v:cm/s,force=F:N,command=V:V")
-TOML_A = """
-[columns]
-time = "t:s"
-displacement = "x:cm"
-velocity = "v:cm/s"
-force = "F:N"
-command = "V:V"
-"""
-
-
-def write_layout_b(folder, n=3000):
-    """(b) .mat files of a shaking-table campaign: a time vector, displacement in mm, force in
-    N and a 3-column matrix [x mm, v mm/s, F N]; names like ensaio.B.1.mat, no current."""
-    t, x, v = motion(n)
-    out = {}
-    for k, current in enumerate((0.5, 1.0), start=1):
-        force = tanh_force(x, v, current)
-        name = f"ensaio.B.{k}.mat"
-        scipy.io.savemat(folder / name, {
-            "tempo": t[:, None], "desloc": x * 1e3, "forca": force,
-            "dados": np.column_stack([x * 1e3, v * 1e3, force]),
-        })
-        out[name] = dict(t=t, x=x, v=v, force=force, current=current)
-    return out
-
-
-OPTIONS_B = dict(columns="time=tempo:s,displacement=dados[0]:mm,velocity=dados[1]:mm/s,"
-                         "force=dados[2]:N",
-                 current="ensaio.B.1.mat=0.5,ensaio.B.2.mat=1")
-TOML_B = """
-[columns]
-time         = "tempo:s"
-displacement = "desloc:mm"     # the vector; velocity then estimated
-force        = "forca:N"
-
-[files."ensaio.B.1.mat"]
-current_A = 0.5
-
-[files."ensaio.B.2.mat"]
-current_mA = 1000
-"""
-
-
-def write_layout_c(path, n=3000):
-    """(c) A .mat matrix with no time vector: column 0 displacement in mm, columns 1-5 force
-    at five currents (one test per column); the rate, 1 kHz, is in the lab's notes."""
-    t, x, v = motion(n)
-    forces = [tanh_force(x, v, i) for i in CURRENTS]
-    scipy.io.savemat(path, {"M": np.column_stack([x * 1e3, *forces])})
-    return dict(t=t, x=x, v=v, forces=forces)
-
-
-OPTIONS_C = dict(columns="displacement=0:mm", wide="force=1,2,3,4,5:N",
-                 current="0,0.25,0.5,0.75,1", sample_rate="1000")
-TOML_C = """
-[columns]
-displacement = "0:mm"
-
-[meta]
-sample_rate_Hz = 1000
-
-[wide]
-force     = ["M[1]:N", "M[2]:N", "M[3]:N", "M[4]:N", "M[5]:N"]
-current_A = [0, 0.25, 0.5, 0.75, 1.0]
-"""
 
 
 def _spec(kind, tmp_path, options, toml):
@@ -329,6 +227,13 @@ def test_options_override_single_keys_of_a_file(tmp_path):
     assert spec.file_meta("x/a.mat") == md.Meta(current=0.5, frequency=2.0)
     assert spec.file_meta("b7.mat").current == 1.0 and spec.file_meta("c.mat").current is None
     assert spec.replace(velocity_window=0.01).velocity_window == 0.01
+    # Per-test values refer to the file's wide layout and override per test and key.
+    (tmp_path / "w.toml").write_text(TOML_C + "frequency_Hz = [1, 2, 3, 4, 5]\n")
+    wide = md.DataSpec.from_toml(tmp_path / "w.toml").with_options(current="0,0.5,1,1.5,2")
+    assert dict(wide.wide) == dict(base.wide)
+    assert [(m.current, m.frequency) for m in wide.wide_meta] == [
+        (0.0, 1.0), (0.5, 2.0), (1.0, 3.0), (1.5, 4.0), (2.0, 5.0)]
+    _raises(lambda: base.with_options(current="0,1"), "differ in length", "current: 2")
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,9 +6,15 @@ mrjax fit DATA... --model kwok --generalize two-step   ... plus current-dependen
 mrjax predict --fit DIR/fit.json DATA... [--out DIR]  evaluate the laws on other tests
 mrjax compare DATA... [--models all|kwok,...] [--hold-out current=0.25,0.75 | --folds K |
               --validate FILES] [--out DIR]        rank every model: criteria + held-out laws
+mrjax inspect DATA... [data options] [--out DIR]    what is read: one line per test + a figure
 mrjax reproduce [--quick]                           the paper's study on the embedded data
 mrjax models                                        models, parameters, units, default bounds
 ```
+
+`fit`, `predict`, `compare` and `inspect` share the data options, for files with their own
+column names, units and layouts: `--spec FILE.toml` and the flags `--columns`, `--wide`,
+`--sample-rate`, `--current`, `--frequency`, `--amplitude`, `--label`, `--velocity-window`,
+which override single keys of the spec file (`mrjax.data.DataSpec`).
 
 Errors in the input (missing or malformed files, unknown models, bad options, unwritable
 output) print one line `mrjax: error: ...` on stderr and exit with code 2; `--debug` shows the

@@ -1,15 +1,21 @@
-"""Helpers shared by the `mrjax` commands: messages, argument types, data loading."""
+"""Helpers shared by the `mrjax` commands: messages, argument types, the data options and
+data loading."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import sys
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from .._errors import InputError
-from ..data import Batch, find_files, load, make_batch
+from ..data import Batch, Condition, DataSpec, describe, find_files, load, make_batch
 from ..models import AbstractModel, check_bounds
 
 DEFAULT_OUT = "mrjax-out"
@@ -99,11 +105,189 @@ def parse_bounds(items: list[str] | None, model: AbstractModel) -> tuple[dict, d
     return lower, upper
 
 
-def load_batch(paths: list[str]) -> Batch:
-    """Expand files/directories, say how many, load them into one padded batch."""
+# --------------------------------------------------------------------------------------------
+# Data options: one data spec (`mrjax.data.DataSpec`) from --spec and flags
+
+
+#: The data flags and the `DataSpec.from_options` argument each one sets.
+DATA_FLAGS: dict[str, str] = {
+    "columns": "--columns", "wide": "--wide", "sample_rate": "--sample-rate",
+    "current": "--current", "frequency": "--frequency", "amplitude": "--amplitude",
+    "label": "--label", "velocity_window": "--velocity-window",
+}
+
+
+def add_data_options(parser: argparse.ArgumentParser) -> None:
+    """Add the data options (where each signal is, in which unit, and what the files cannot
+    say) to a sub-command's parser: `--spec FILE.toml` and the flags of
+    `mrjax.data.DataSpec.from_options`, which override single keys of the spec file.
+
+    **Arguments:** `parser`: the sub-command's parser; :func:`data_spec` reads the result.
+    """
+    g = parser.add_argument_group(
+        "data options",
+        "How to read files with their own column names, units and layouts (default: each "
+        "format's conventions: long CSV with unit-suffixed headers, UTFSM txt t x v F, "
+        "metadata from names like 25mm0x1Hz0x75A). UNIT is any unit of the right dimension "
+        "(s, ms; m, mm, cm, in; mm/s, cm/s, in/s; N, kN, lbf; A, mA; V for a command). "
+        "The flags override single keys of --spec. Check a spec with `mrjax inspect`.")
+    g.add_argument("--spec", metavar="FILE.toml",
+                   help="data spec file: [columns], [meta], [wide], [files], [velocity] (see "
+                   "the README, 'Your own files')")
+    g.add_argument("--columns", metavar="ROLE=SOURCE:UNIT,...",
+                   help="where each signal is: ROLE is time, displacement, velocity, force, "
+                   "current (measured, per sample), command (per-sample current or voltage), "
+                   "frequency, amplitude or condition; SOURCE a CSV header, a .mat variable, "
+                   "name[k] (column k, 0-based, of a 2-D .mat variable) or a bare k (column k "
+                   "of a headerless text file or of the only .mat matrix); e.g. "
+                   "time=t:s,displacement=x:cm,velocity=v:cm/s,force=F:N,command=V:V")
+    g.add_argument("--wide", metavar="ROLE=SOURCE,...:UNIT",
+                   help="one test per column: the columns of ROLE, one per test, a unit on "
+                   "the last one applying to all, e.g. force=1,2,3,4,5:N (several roles: "
+                   "separate by ';'); the roles of --columns are shared by all tests")
+    g.add_argument("--sample-rate", metavar="HZ",
+                   help="sample rate when there is no time column, e.g. 1000 or '1 kHz' "
+                   "(or FILE=HZ,...)")
+    g.add_argument("--current", metavar="A",
+                   help="coil current of the tests: one value (0.5, '500 mA'), one per "
+                   "column of --wide (0,0.25,0.5), or per file (FILE=A,...; FILE may be a "
+                   "glob pattern, e.g. ensaio.B.1.mat=0.5,ensaio.B.2.mat=1)")
+    g.add_argument("--frequency", metavar="HZ",
+                   help="excitation frequency, given like --current (default: from the file "
+                   "or its name; with data options, else estimated from the displacement "
+                   "spectrum and reported as an estimate)")
+    g.add_argument("--amplitude", metavar="M",
+                   help="displacement amplitude in m or with a unit ('8 mm'), given like "
+                   "--current (default: as --frequency; the estimate is half the range)")
+    g.add_argument("--label", metavar="NAME",
+                   help="test label(s), given like --current (default: the CSV condition "
+                   "column or the file name, with _k for the k-th --wide column)")
+    g.add_argument("--velocity-window", metavar="SECONDS",
+                   help="window of the velocity estimated from displacement (when no velocity "
+                   "column is read), e.g. 0.02 or '20 ms' (default: chosen from the bandwidth "
+                   "of each record)")
+
+
+def data_spec(args: argparse.Namespace) -> DataSpec | None:
+    """The data spec of a command's parsed data options: the `--spec` file with every given
+    flag overriding its single key, or `None` when no data option was given (files are then
+    read by their own conventions, as `mrjax.data.load(paths)`).
+
+    Raises :class:`mrjax.InputError` (one line naming the option or the spec file) for a
+    malformed spec file or flag.
+    """
+    options = {k: getattr(args, k, None) for k in DATA_FLAGS}
+    options = {k: v for k, v in options.items() if v is not None}
+    path = getattr(args, "spec", None)
+    if path is None and not options:
+        return None
+    spec = DataSpec.from_toml(path) if path is not None else DataSpec()
+    if not options:
+        return spec
+    try:
+        return spec.with_options(**options)
+    except InputError as e:
+        raise InputError(_blame(spec, options, e)) from None
+
+
+def _blame(spec: DataSpec, options: dict[str, str], error: InputError) -> str:
+    """The message of a data-flag error, led by the flag at fault: the first flag that fails
+    alone with the same message (else all the flags given, e.g. lists of different lengths)."""
+    msg = str(error)
+    for key, value in options.items():
+        try:
+            spec.with_options(**{key: value})
+        except InputError as alone:
+            if str(alone) == msg:
+                for head in ("options: ", f"{key}: ", f"{key.replace('_', '-')}: "):
+                    msg = msg.removeprefix(head)
+                return f"{DATA_FLAGS[key]}: {msg}"
+    given = ", ".join(DATA_FLAGS[k] for k in options)
+    return f"{given}: {msg.removeprefix('options: ')}"
+
+
+def load_conditions(paths: Sequence[str | os.PathLike],
+                    spec: DataSpec | None = None) -> list[Condition]:
+    """Expand files and directories, say how many, and load them (`mrjax.data.load`) with
+    `spec` (`None`: by the files' own conventions)."""
     files = find_files(paths)
     say(f"loading {len(files)} file{'s' if len(files) != 1 else ''}...")
-    return make_batch(load(files))
+    return load(files, spec=spec)
+
+
+def load_batch(paths: Sequence[str | os.PathLike], spec: DataSpec | None = None) -> Batch:
+    """Expand files/directories, say how many, load them (with `spec`, if any) into one padded
+    batch."""
+    return make_batch(load_conditions(paths, spec))
+
+
+def load_batches(sets: Sequence[Sequence[str | os.PathLike]],
+                 spec: DataSpec | None = None) -> list[Batch]:
+    """Several sets of files read with one spec (`mrjax compare FILES --validate FILES`), one
+    batch per set. A spec's `[files]` entry (or `FILE=VALUE` flag) need match only one of the
+    sets: the loader's warning that it matches no file is kept only when it matches none."""
+    # `mrjax.data.load` warns "<spec>: files entry '<pattern>' matches none of the N file(s)
+    # loaded"; the part before " matches none of the " names the entry.
+    batches, unmatched = [], []
+    for paths in sets:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            batches.append(load_batch(paths, spec))
+        keys = set()
+        for w in caught:
+            head, sep, _ = str(w.message).partition(" matches none of the ")
+            if sep:
+                keys.add(head)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        unmatched.append((keys, caught))
+    common = set.intersection(*(k for k, _ in unmatched)) if unmatched else set()
+    for w in unmatched[0][1]:
+        head, sep, _ = str(w.message).partition(" matches none of the ")
+        if sep and head in common:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return batches
+
+
+def say_estimates(batch: Batch) -> None:
+    """One stage line saying how many tests' velocity, frequency or amplitude are estimates
+    rather than read (nothing when none is); the outputs list them per test."""
+    est = np.asarray(batch.estimated, bool)
+    parts = [f"{what} of {int(est[:, j].sum())}"
+             for j, what in enumerate(("velocity", "frequency", "amplitude")) if est[:, j].any()]
+    if parts:
+        C = batch.n_conditions
+        say(f"estimated, not read ('estimated' in the JSON output): {', '.join(parts)} of the "
+            f"{C} test{'s' if C != 1 else ''}")
+
+
+def force_figures(model: object, batch: Batch, force: np.ndarray, rms: np.ndarray, *,
+                  titles: tuple[str, str], prefix: str = "") -> dict[str, bytes]:
+    """The measured vs model force figures of a batch, name -> PNG bytes: `loops.png` (F-x and
+    F-v loops) of the periodic conditions and `force_time.png` (force against time, whole and
+    zoomed, with the residual) of those whose motion has no single dominant frequency
+    (`mrjax.data.describe(batch)[i].broadband`: random, earthquake-type records); each only
+    when it has conditions.
+
+    **Arguments:** `model`: the fitted object (for names); `batch`: the data; `force` (C, T)
+    [N]: the model's force; `rms` (C,) [N]; `titles`: of the loops and of the time-series
+    figure; `prefix` of the file names.
+    """
+    use_agg()
+    from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+    wide = np.array([r.broadband for r in describe(batch)], bool)
+    out = {}
+    for name, sel, plot, title in (("loops.png", ~wide, rp.plot_loops_grid, titles[0]),
+                                   ("force_time.png", wide, rp.plot_force_time, titles[1])):
+        idx = np.flatnonzero(sel)
+        if idx.size == 0:
+            continue
+        sub = batch if idx.size == batch.n_conditions else batch.subset(idx)
+        f = np.asarray(force, float)[idx][:, : sub.length]
+        out[prefix + name] = rp.save_png_bytes(plot(model, sub, force=f, rms=np.asarray(rms)[idx],
+                                                    title=title))
+    return out
 
 
 def read_fit_json(path: str) -> dict:

@@ -9,7 +9,10 @@ from .._io import atomic_output, check_writable, json_bytes
 from ..comparison import compare
 from ._common import (
     DEFAULT_OUT,
+    add_data_options,
+    data_spec,
     load_batch,
+    load_batches,
     nonneg_int,
     positive_int,
     say,
@@ -60,8 +63,12 @@ def run(args: argparse.Namespace) -> int:
     fit_options = dict(method=args.method, restarts=args.restarts, n_particles=args.particles,
                        max_generations=args.max_generations, polish_steps=args.polish_steps,
                        transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None)
-    batch = load_batch(args.files)
-    validate = load_batch(args.validate) if args.validate else None
+    spec = data_spec(args)
+    if args.validate:
+        batch, validate = load_batches([args.files, args.validate], spec)
+    else:  # without data options, today's one-argument call (tests replace it)
+        batch = load_batch(args.files) if spec is None else load_batch(args.files, spec)
+        validate = None
     result = compare(batch, models=args.models, validate=validate, hold_out=hold_out,
                      folds=folds, generalize_methods=args.generalize, seed=args.seed, log=say,
                      **fit_options)
@@ -91,8 +98,8 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="models to compare, e.g. kwok,bouc_wen (default all)")
     held = p.add_mutually_exclusive_group()
     held.add_argument("--validate", nargs="+", metavar="FILE",
-                      help="score the laws built on all FILES on these other tests (put it "
-                      "after FILES)")
+                      help="score the laws built on all FILES on these other tests, read with "
+                      "the same data options (put it after FILES)")
     held.add_argument("--hold-out", metavar="current=A,...",
                       help="hold out the tests at these currents, e.g. current=0.25,0.75")
     held.add_argument("--folds", metavar="K|current",
@@ -118,4 +125,5 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    add_data_options(p)
     p.set_defaults(func=run)

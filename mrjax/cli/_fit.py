@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
 from .._errors import InputError
 from .._io import atomic_output, check_writable
 from ..fitting import fit
@@ -12,27 +14,36 @@ from ..models import get
 from ..objective import fit_mask
 from ._common import (
     DEFAULT_OUT,
+    add_data_options,
+    data_spec,
+    force_figures,
     load_batch,
     nonneg_int,
     parse_bounds,
     positive_int,
     say,
+    say_estimates,
     transient,
     use_agg,
 )
 
 
 def figures(result, batch, gm) -> dict[str, bytes]:
-    """The PNG figures of a fit (and of its laws `gm`, if any), name -> bytes."""
+    """The PNG figures of a fit (and of its laws `gm`, if any), name -> bytes: measured vs
+    fitted F-x and F-v loops of the periodic tests (`loops.png`), force against time of the
+    others (`force_time.png`), and the per-condition summaries."""
     use_agg()
     from .. import report as rp  # imported here: matplotlib only when figures are drawn
 
     png = rp.save_png_bytes
-    out = {
-        "loops.png": png(rp.plot_loops_grid(result, batch)),
+    name = result.model.name
+    out = force_figures(result, batch, result.predict(batch), result.rms,
+                        titles=(f"{name}: measured vs fitted loops",
+                                f"{name}: measured vs fitted force"))
+    out.update({
         "rms_vs_current.png": png(rp.plot_rms_vs_current(result)),
         "params_vs_current.png": png(rp.plot_params_vs_current(result, laws=gm)),
-    }
+    })
     if result.method in ("pso", "pso+lm"):
         out["generations_vs_current.png"] = png(rp.plot_generations_vs_current(result))
         out["convergence.png"] = png(rp.plot_convergence(result))
@@ -49,7 +60,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
     bounds = parse_bounds(args.bounds, model)
-    batch = load_batch(args.files)
+    spec = data_spec(args)
+    batch = load_batch(args.files, spec)
+    say_estimates(batch)
+    unknown = [lab for lab, i in zip(batch.labels, np.asarray(batch.current)) if np.isnan(i)]
+    if args.generalize and unknown:  # fail before the fit, not after it
+        raise InputError(f"--generalize needs the current of every test; it is unknown for "
+                         f"{len(unknown)} of {len(batch.labels)} (first: {unknown[0]!r}): give "
+                         f"--current or a spec")
     C = batch.n_conditions
     how = args.method if args.method == "lm" else f"{args.method}, {args.swarm} swarm"
     say(f"fitting {model.name} on {C} condition{'s' if C != 1 else ''} ({how})...")
@@ -84,10 +102,11 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "fit", parents=[common], help="identify a model on every test condition",
         description="Fit one model to every test in the given files at once and write fit.json, "
-        "fit.csv and figures into --out (atomically: all files or none).")
+        "fit.csv and figures into --out (atomically: all files or none): F-x and F-v loops of "
+        "periodic tests, force against time (whole, zoomed, residual) of random records.")
     p.add_argument("files", nargs="+", metavar="FILE",
-                   help="data files or directories (.csv long format, .txt/.dat UTFSM-style "
-                   "columns t x v F, .mat)")
+                   help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
+                   "the data options below)")
     p.add_argument("--model", required=True, metavar="NAME",
                    help="model name: bingham, kwok (tanh), bouc_wen, modified_bouc_wen, dahl "
                    "(see `mrjax models`)")
@@ -118,4 +137,5 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    add_data_options(p)
     p.set_defaults(func=run)

@@ -9,7 +9,7 @@ import warnings
 
 from .. import __version__
 from .._errors import InputError
-from . import _compare, _fit, _misc, _predict
+from . import _compare, _fit, _inspect, _misc, _predict
 from ._common import one_line, show_warning
 
 #: Environment variable naming the persistent XLA compilation cache of the `mrjax` command
@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     _fit.add_parser(sub, common)
     _predict.add_parser(sub, common)
     _compare.add_parser(sub, common)
+    _inspect.add_parser(sub, common)
     _misc.add_parsers(sub, common)
     return parser
 

@@ -10,10 +10,21 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, check_writable, json_bytes, json_safe
+from ..data import ESTIMATED_FIELDS
 from ..fitting import csv_cell
 from ..generalize import GeneralizedModel
 from ..report import format_table
-from ._common import DEFAULT_OUT, load_batch, read_fit_json, say, use_agg
+from ._common import (
+    DEFAULT_OUT,
+    add_data_options,
+    data_spec,
+    force_figures,
+    load_batch,
+    read_fit_json,
+    say,
+    say_estimates,
+    use_agg,
+)
 
 _GEN_HINT = "run `mrjax fit DATA... --model NAME --generalize two-step` first"
 
@@ -22,13 +33,16 @@ def _rows(batch, rms, nrmse) -> list[dict]:
     cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
                       ("current", "frequency", "amplitude"))
     n = np.asarray(batch.n_samples)
+    est = np.asarray(batch.estimated, bool)
     return [json_safe({"label": batch.labels[i], "current_A": cur[i], "frequency_Hz": freq[i],
                        "amplitude_m": amp[i], "n_samples": int(n[i]), "rms_N": rms[i],
-                       "nrmse": nrmse[i]}) for i in range(batch.n_conditions)]
+                       "nrmse": nrmse[i],
+                       "estimated": [k for k, e in zip(ESTIMATED_FIELDS, est[i]) if e]})
+            for i in range(batch.n_conditions)]
 
 
 def _csv(rows: list[dict]) -> str:
-    cols = list(rows[0])
+    cols = [c for c in rows[0] if c != "estimated"]
     lines = [",".join(cols)]
     lines += [",".join(csv_cell(np.nan if r[c] is None else r[c]) for c in cols) for r in rows]
     return "\n".join(lines) + "\n"
@@ -65,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
     """Run `mrjax predict` with parsed arguments; returns the exit code."""
     out = check_writable(args.out)
     gm, model = _read_model(args.fit)
-    batch = load_batch(args.files)
+    spec = data_spec(args)
+    batch = load_batch(args.files, spec)
+    say_estimates(batch)
     C = batch.n_conditions
     say(f"predicting {C} condition{'s' if C != 1 else ''} with the generalized {model}...")
     ev = gm.evaluate(batch)
@@ -80,9 +96,10 @@ def run(args: argparse.Namespace) -> int:
         use_agg()
         from .. import report as rp  # imported here: matplotlib only when figures are drawn
 
-        title = f"generalized {model}: measured vs predicted loops"
-        files["predict_loops.png"] = rp.save_png_bytes(rp.plot_loops_grid(
-            gm, batch, force=np.asarray(ev["predicted"], float), rms=rms, title=title))
+        files.update(force_figures(
+            gm, batch, np.asarray(ev["predicted"], float), rms, prefix="predict_",
+            titles=(f"generalized {model}: measured vs predicted loops",
+                    f"generalized {model}: measured vs predicted force")))
         pts = SimpleNamespace(current=batch.current, frequency=batch.frequency,
                               amplitude=batch.amplitude, rms=rms, labels=batch.labels)
         files["predict_rms_vs_current.png"] = rp.save_png_bytes(
@@ -99,11 +116,13 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
         "predict", parents=[common], help="evaluate fitted current-dependent laws on tests",
         description="Predict the force of other tests from the current-dependent laws in a "
         "fit.json written by `mrjax fit --generalize`; write predict.json, predict.csv and "
-        "figures.")
+        "figures (loops of periodic tests, force against time of random records).")
     p.add_argument("--fit", required=True, metavar="FIT.json",
                    help="fit.json of `mrjax fit --generalize` (or its directory)")
-    p.add_argument("files", nargs="+", metavar="FILE", help="data files or directories")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="data files or directories (any layout with the data options below)")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    add_data_options(p)
     p.set_defaults(func=run)

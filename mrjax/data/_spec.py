@@ -190,8 +190,9 @@ class DataSpec:
 
         **Returns:** the merged :class:`DataSpec`. Per key: a role of `other.columns` replaces
         that role here (in `columns` or `wide`); a wide layout of `other` replaces this one
-        (with its per-test values, or these if it has none); metadata override per field and
-        per file pattern; a set velocity window replaces this one.
+        (with its per-test values, or these if it has none; the same layout's per-test values
+        override these per test and field); metadata override per field and per file pattern;
+        a set velocity window replaces this one.
         """
         if other is None:
             return self
@@ -199,6 +200,10 @@ class DataSpec:
         columns.update(other.columns)
         if other.wide:
             wide, wide_meta = dict(other.wide), other.wide_meta or self.wide_meta
+            if (wide == dict(self.wide) and other.wide_meta
+                    and len(other.wide_meta) == len(self.wide_meta)):
+                # the same layout: per-test values override per test and key
+                wide_meta = tuple(a.merged(b) for a, b in zip(self.wide_meta, other.wide_meta))
         else:
             wide = {r: c for r, c in self.wide.items() if r not in other.columns}
             wide_meta = other.wide_meta or (self.wide_meta if wide else ())
@@ -217,9 +222,14 @@ class DataSpec:
         """Options override single keys: `self.merged(DataSpec.from_options(**options))`.
 
         **Arguments:** `**options`: as for :meth:`from_options` (`None` = not given).
+            Per-test values (`current="0,0.5,1"`) without a `wide` option refer to this
+            spec's wide layout.
 
         **Returns:** the merged :class:`DataSpec`.
         """
+        if (self.wide and options.get("wide") is None
+                and any(_per_test(k, v) for k, v in options.items())):
+            options = {**options, "wide": dict(self.wide)}
         return self.merged(DataSpec.from_options(**options))
 
     def to_toml(self) -> str:
@@ -440,8 +450,7 @@ class DataSpec:
                 pairs = _pairs(value, what) if isinstance(value, str) else list(value.items())
                 for pattern, v in pairs:
                     per_file.setdefault(pattern, {})[name] = conv(v)
-            elif isinstance(value, (list, tuple)) or (isinstance(value, str) and "," in value
-                                                       and name != "sample_rate"):
+            elif isinstance(value, (list, tuple)) or _per_test(name, value):
                 vals = value.split(",") if isinstance(value, str) else value
                 if name == "sample_rate":
                     raise InputError("sample-rate: one rate for all tests, or FILE=RATE pairs")
@@ -457,6 +466,16 @@ class DataSpec:
         return cls(columns=cols, wide=wide_cols, meta=Meta(**meta), wide_meta=wide_meta,
                    files={k: Meta(**v) for k, v in per_file.items()},
                    velocity_window=velocity_window, origin="options")
+
+
+def _per_test(name: str, value: Any) -> bool:
+    """Whether an option value of :meth:`DataSpec.from_options` gives one value per test of a
+    wide layout (a list, or a comma list without FILE= pairs)."""
+    if name not in ("current", "frequency", "amplitude", "label") or value is None:
+        return False
+    if isinstance(value, (list, tuple)):
+        return True
+    return isinstance(value, str) and "," in value and "=" not in value
 
 
 def _meta_number(value: Any, where: str, key: str) -> float:

@@ -16,7 +16,7 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, json_safe
-from ..data import Batch
+from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model
 
 
@@ -47,6 +47,9 @@ class FitResult:
     - `stderr` (C, P), `ci95` (C, P, 2), `corr` (C, P, P), `identifiable` (C, P): uncertainty
         from the Jacobian at the optimum (NaN where undefined).
     - `timings`: seconds per stage.
+    - `estimated` (C, 3) bool: whether each condition's `xdot`, `frequency`, `amplitude` (the
+        columns of `mrjax.data.ESTIMATED_FIELDS`) were estimated rather than read, as
+        `Batch.estimated`; `None` when not known.
     """
 
     model: AbstractModel
@@ -72,6 +75,7 @@ class FitResult:
     corr: np.ndarray
     identifiable: np.ndarray
     timings: dict[str, float]
+    estimated: np.ndarray | None = None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -183,6 +187,7 @@ class FitResult:
                 "polish_status": self.polish_status[i],
                 "polish_steps": int(self.polish_steps[i]),
                 "identifiable": dict(zip(names, self.identifiable[i])),
+                "estimated": self._estimated_names(i),
             })
         doc = {
             "model": self.model.name,
@@ -197,6 +202,12 @@ class FitResult:
         if generalized is not None:
             doc["generalized"] = generalized.to_dict()
         return json_safe(doc)
+
+    def _estimated_names(self, i: int) -> list[str]:
+        """Which of velocity (`xdot`), frequency and amplitude of condition `i` are estimates."""
+        if self.estimated is None:
+            return []
+        return [n for n, e in zip(ESTIMATED_FIELDS, np.asarray(self.estimated)[i]) if e]
 
     def to_json(self, *, generalized: Any = None) -> str:
         """`fit.json` text, the one writer of that file (see :meth:`to_dict`)."""

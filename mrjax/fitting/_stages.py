@@ -326,7 +326,7 @@ def evaluate(p: Problem, sw: SwarmStage, pol: PolishStage, timings: dict[str, fl
         ci95=np.full((C, P, 2), np.nan) if unc is None else np.asarray(unc.ci95, float),
         corr=np.full((C, P, P), np.nan) if unc is None else np.asarray(unc.corr, float),
         identifiable=np.ones((C, P), bool) if unc is None else np.asarray(unc.identifiable, bool),
-        timings=timings,
+        timings=timings, estimated=np.asarray(batch.estimated, bool),
     )
     return unpad(result, p.n_real) if result.n_conditions != p.n_real else result
 

@@ -6,7 +6,9 @@ Figures are `matplotlib.figure.Figure` objects made without `pyplot` (no display
 ```python
 import mrjax, mrjax.report as rp
 res = mrjax.fit("kwok", batch)
-png = rp.save_png_bytes(rp.plot_loops_grid(res, batch))
+png = rp.save_png_bytes(rp.plot_loops_grid(res, batch))      # periodic tests: F-x, F-v loops
+png = rp.save_png_bytes(rp.plot_force_time(res, batch))      # random records: force vs time
+png = rp.save_png_bytes(rp.plot_records(mrjax.data.load("tests/")))   # what was read
 ```
 """
 
@@ -19,3 +21,5 @@ from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
 from ._figures import plot_rms_vs_current as plot_rms_vs_current
 from ._figures import save_png_bytes as save_png_bytes
 from ._tables import format_table as format_table
+from ._timeseries import plot_force_time as plot_force_time
+from ._timeseries import plot_records as plot_records
