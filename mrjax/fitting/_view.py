@@ -6,7 +6,8 @@ costs far more than that needs (a 0.1 Hz sine test sampled at 200 Hz has 2,000 s
 cycle and 5-10 cycles). For the swarm, each record is therefore *subsampled* (every k-th
 measured sample, nothing filtered) to about `SAMPLES_PER_PERIOD` samples per period of its
 highest significant frequency, and a periodic record is cut to its first whole periods, at
-least `MIN_PERIODS` and about `MAX_SAMPLES` samples. The view starts where the record starts,
+least `MIN_PERIODS` and about `MAX_SAMPLES` samples; no record is subsampled below
+`MIN_SAMPLES` samples. The view starts where the record starts,
 so a dynamic model's state starts where it does on the full record.
 
 The frequency of a periodic test is its known excitation frequency (or the spectral estimate
@@ -31,6 +32,8 @@ SAMPLES_PER_PERIOD = 64
 MAX_SAMPLES = 1024
 #: The fewest periods a periodic record keeps.
 MIN_PERIODS = 2
+#: A record is never subsampled below this many samples (short records are kept whole).
+MIN_SAMPLES = 512
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +60,7 @@ def view_plan(cond: Condition) -> tuple[int, int]:
     if not (f and math.isfinite(f) and f > 0):
         return 1, n
     per = SAMPLES_PER_PERIOD / 2 if broadband else SAMPLES_PER_PERIOD
-    step = max(1, int(fs / (per * f)))
+    step = max(1, min(int(fs / (per * f)), n // MIN_SAMPLES))
     if broadband:
         return step, n
     period = fs / f  # samples per period of the full record
