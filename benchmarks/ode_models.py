@@ -63,8 +63,7 @@ def _one_model(cfg, name: str) -> dict:
     base = get(name)
     lo, hi = base.bounds
     model = models.resolve_model(
-        base, models.box_corners(base, lo, hi), batch.xdot, batch.dt, batch.mask,
-        cap=models.SWARM_MAX_SUBSTEPS
+        base, models.box_corners(base, lo, hi), batch.xdot, batch.dt, batch.mask, swarm=True
     )
     C, D = batch.n_conditions, base.n_params
     data = objective.condition_data(batch)

@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._errors import InputError
 from ..data import Batch
-from ..models import SWARM_MAX_SUBSTEPS, AbstractModel, box_corners, check_bounds, resolve_model
+from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import (
     FullObjective,
     LinearObjective,
@@ -78,14 +78,13 @@ def fit_swarm(
         `theta` and `rms` are always recomputed in the default float (float64) from the best
         swarm positions, so only the search runs in the lower precision.
 
-    ODE models get their sub-steps resolved from the box corners, capped at
-    `mrjax.models.SWARM_MAX_SUBSTEPS`.
+    ODE models integrate with the swarm's policy of `mrjax.models.resolve_model` (one L-stable
+    step per sample).
 
     **Returns:** a :class:`ModelSwarm` with the full parameter vectors and their RMS [N].
     """
     lo, hi = check_bounds(model, bounds)
-    model = resolve_model(model, box_corners(model, lo, hi), batch.xdot, batch.dt, batch.mask,
-                          cap=SWARM_MAX_SUBSTEPS)
+    model = resolve_model(model, lo, batch.xdot, batch.dt, batch.mask, swarm=True)
     if params is None:
         params = default_params(mode)
     data = condition_data(batch, mask)

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..data import Batch
-from ..models import SWARM_MAX_SUBSTEPS, AbstractModel, resolve_model
+from ..models import AbstractModel, resolve_model
 from ..objective import gram_terms, residuals, rms_from_gram, solve_normal
 from ..pso import AbstractObjective, PSOParams, default_params, swarm
 from ..refine import lm_solve, status_name
@@ -235,7 +235,7 @@ def _objective(model: AbstractModel, start: JointStart, batch: Batch, nu0, box_l
     ls_cols = tuple((lin.index(names[p]), m_) for p in ls_params for m_ in range(layout.sizes[p]))
     exp_lin = tuple((lin.index(names[p]), p) for p in search_params if names[p] in lin)
     V_ls = layout.V[np.ix_(ls_idx, ls_idx)] if ls_idx else np.zeros((0, 0))
-    # sub-steps for the swarm: the stiffest law values over the box (capped like fit_swarm)
+    # the swarm's integration (see mrjax.models.resolve_model)
     model_sw = model
     if model.dynamic and model.substeps is None:
         corners = [nu0]
@@ -243,8 +243,7 @@ def _objective(model: AbstractModel, start: JointStart, batch: Batch, nu0, box_l
             corners.append(np.where(np.isin(np.arange(layout.n), search_idx), side, nu0))
         rows = np.concatenate([start.theta] + [np.asarray(layout.lawset(layout.Vinv @ c)(
             jnp.asarray(start.levels))) for c in corners])
-        model_sw = resolve_model(model, rows, batch.xdot, batch.dt, batch.mask,
-                                 cap=SWARM_MAX_SUBSTEPS)
+        model_sw = resolve_model(model, rows, batch.xdot, batch.dt, batch.mask, swarm=True)
     obj = JointObjective(model_sw, jnp.asarray(nu0), jnp.asarray(layout.Vinv), jnp.asarray(V_ls),
                          search_idx, ls_idx, ls_cols, exp_lin, kinds, layout.sizes)
     idx = list(search_idx)

@@ -23,6 +23,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
+from ._integrate import SCHEMES
 from ._substeps import TRACED_SUBSTEPS, choose_substeps, max_abs
 
 
@@ -44,9 +45,12 @@ class AbstractModel(eqx.Module):
         swarm searches in log space.
     - `dynamic`: whether the model has internal state integrated by the RK4 scan.
 
-    Instance field:
+    Instance fields (static):
 
-    - `substeps`: RK4 sub-steps per sample for dynamic models; `None` chooses automatically.
+    - `substeps`: integrator steps per sample for dynamic models; `None` chooses
+        automatically (see `mrjax.models.resolve_model`).
+    - `scheme`: `"rk4"`, `"sdirk"` (L-stable) or `None` (automatic); see
+        `mrjax.models.integrate`.
     """
 
     name: ClassVar[str]
@@ -60,11 +64,19 @@ class AbstractModel(eqx.Module):
     log_params: ClassVar[tuple[str, ...]] = ()
     description: ClassVar[str] = ""
 
+    #: Largest RK4 sub-step count the sub-step policy accepts for this model's polish before
+    #: it switches to the L-stable scheme (see `mrjax.models.resolve_model`).
+    rk4_limit: ClassVar[int] = 8
+
     substeps: int | None = eqx.field(static=True, default=None)
+    scheme: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.substeps is not None and (int(self.substeps) != self.substeps or self.substeps < 1):
             raise InputError(f"substeps must be a positive integer or None, got {self.substeps!r}")
+        if self.scheme is not None and self.scheme not in SCHEMES:
+            raise InputError(f"scheme must be one of {', '.join(SCHEMES)} or None, got "
+                             f"{self.scheme!r}")
 
     # ----------------------------------------------------------------------------- metadata
     @property
@@ -119,9 +131,10 @@ class AbstractModel(eqx.Module):
             )
         return np.array([float(values[n]) for n in self.param_names])
 
-    def with_substeps(self, substeps: int | None) -> AbstractModel:
-        """Return a copy with a fixed RK4 sub-step count (or `None` for automatic)."""
-        return type(self)(substeps=substeps)
+    def with_substeps(self, substeps: int | None, scheme: str | None = None) -> AbstractModel:
+        """Return a copy with a fixed sub-step count and integration scheme (`"rk4"`, the
+        default for a fixed count, or `"sdirk"`), or `None` for automatic."""
+        return type(self)(substeps=substeps, scheme=scheme)
 
     # ----------------------------------------------------------------------------- dynamics
     def stiffness(self, theta: ArrayLike, vmax: float) -> float:
@@ -147,13 +160,21 @@ class AbstractModel(eqx.Module):
         rate = max(self.stiffness(r, vmax) for r in rows)
         return choose_substeps(rate, max_abs(dt))
 
-    def _substeps_for(self, theta, xdot, dt) -> int:
-        if self.substeps is not None or not self.dynamic:
-            return 1 if not self.dynamic else int(self.substeps)
+    def integration(self, theta, xdot, dt) -> tuple[int, str]:
+        """`(substeps, scheme)` the model integrates with on these inputs: the fixed ones if
+        set (a count without a scheme means RK4), `TRACED_SUBSTEPS` RK4 steps on traced inputs,
+        else the host rule of `resolve_substeps` (RK4)."""
+        if not self.dynamic:
+            return 1, "rk4"
+        if self.substeps is not None:
+            return int(self.substeps), self.scheme or "rk4"
+        if self.scheme == "sdirk":
+            return 1, "sdirk"
         if any(isinstance(a, jax.core.Tracer) for a in (theta, xdot, dt)):
-            return TRACED_SUBSTEPS
+            return TRACED_SUBSTEPS, "rk4"
         th = np.asarray(theta, float)
-        return self.resolve_substeps(th if th.ndim == 1 else th.reshape(-1, th.shape[-1]), xdot, dt)
+        rows = th if th.ndim == 1 else th.reshape(-1, th.shape[-1])
+        return self.resolve_substeps(rows, xdot, dt), "rk4"
 
     # ----------------------------------------------------------------------------- force
     @abc.abstractmethod

@@ -18,22 +18,65 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._base import AbstractModel, split_theta
-from ._integrate import rk4_scan
+from ._integrate import integrate
+
+
+def bw_zdot_lin(z, u, delta, beta, gamma, n):
+    r"""`(zdot, d zdot/dz, d zdot/du)` of the Bouc-Wen evolution
+    $\dot z = \delta u - |z|^n (\beta u + \gamma |u| \mathrm{sign}(z))$, which equals
+    $\delta u - \beta u |z|^n - \gamma z |u| |z|^{n-1}$, for relative velocity `u`.
+
+    Speed (this runs C x N x steps times per sample): one `log` and one `exp` for the value and
+    both derivatives ($|z|^{n-1}$ as `exp((n-1) log|z|)`, which XLA:CPU vectorises where `pow`
+    is a scalar libm call, then $|z|^n = |z|\,|z|^{n-1}$); signs as selects. 0 at z = 0 with
+    finite gradients (the `safe_abs_pow` convention). d zdot/dz is clipped at 0: it is positive
+    only on the unstable unloading branch of beta > gamma, where it could only make the Newton
+    matrix of the L-stable scheme singular (it enters no solution, only the iteration)."""
+    a = jnp.abs(z)
+    nz = a > 0
+    q = jnp.where(nz, jnp.exp((n - 1.0) * jnp.log(jnp.where(nz, a, 1.0))), 0.0)
+    pw = a * q
+    one = jnp.ones_like(pw)  # keeps float32 in float32 (a bare 1.0 is float64 under x64)
+    sz = jnp.where(z >= 0, one, -one)
+    su = jnp.where(u >= 0, one, -one)
+    au = jnp.abs(u)
+    zd = delta * u - beta * u * pw - gamma * au * sz * pw
+    dz = jnp.minimum(-n * q * (beta * u * sz + gamma * au), 0.0)
+    du = delta - (beta + gamma * su * sz) * pw
+    return zd, dz, du
 
 
 def _bw_zdot(z, u, delta, beta, gamma, n):
-    """Bouc-Wen evolution $\\dot z$ for relative velocity `u`, written NaN-safely as
-    $\\delta u - |z|^n (\\beta u + \\gamma |u| \\mathrm{sign}(z))$, which equals
-    $\\delta u - \\beta u |z|^n - \\gamma z |u| |z|^{n-1}$.
+    r"""The Bouc-Wen evolution $\dot z$ alone (XLA drops the derivatives' unused parts)."""
+    return bw_zdot_lin(z, u, delta, beta, gamma, n)[0]
 
-    Speed (this runs C x N x 4 x substeps times per sample): $|z|^n$ is `exp(n log|z|)`, which
-    XLA:CPU vectorises, where `pow` is a scalar libm call (measured 4x slower in float64, >5x in
-    float32); `sign(z)` becomes a select, exact here because $|z|^n = 0$ at z = 0. Values and
-    gradients are those of `safe_abs_pow` (finite at z = 0)."""
-    a = jnp.abs(z)
-    nz = a > 0
-    p = jnp.where(nz, jnp.exp(n * jnp.log(jnp.where(nz, a, 1.0))), 0.0)
-    return delta * u - beta * u * p - gamma * jnp.abs(u) * jnp.where(z >= 0, p, -p)
+
+def bw_zmax(delta, beta, gamma, n):
+    r"""The bound of the Bouc-Wen z from z(0) = 0: $|z| \le (\delta/(\beta+\gamma))^{1/n}$
+    (the loading fixed point; unloading only shrinks |z|). `inf` where beta + gamma <= 0 or
+    delta <= 0 (unbounded: a diverging particle stays visible). Finite gradients."""
+    s = beta + gamma
+    ok = (s > 0) & (delta > 0)
+    r = jnp.where(ok, delta / jnp.where(ok, s, 1.0), 1.0)
+    return jnp.where(ok, jnp.exp(jnp.log(r) / n), jnp.inf)
+
+
+def dahl_flow(w, rho, v0, v1, h):
+    r"""Exact Dahl update over an interval in which the velocity goes linearly from v0 to v1.
+
+    For a fixed sign s of v, $\dot w = \rho|v|(s - w)$ gives
+    $w_1 = s + (w_0 - s)e^{-\rho\int|v|}$; a sign change at $s^* = v_0/(v_0 - v_1)$ splits
+    the interval in two such pieces. Two `exp`, no stiffness limit, |w| <= 1 kept exactly;
+    finite gradients (guarded division)."""
+    cross = v0 * v1 < 0
+    sstar = jnp.where(cross, v0 / jnp.where(cross, v0 - v1, 1.0), 1.0)
+    a0, a1 = jnp.abs(v0), jnp.abs(v1)
+    i1 = 0.5 * h * sstar * (a0 + jnp.where(cross, 0.0, a1))
+    s1 = jnp.sign(v0 + jnp.where(cross, 0.0, v1))
+    w = s1 + (w - s1) * jnp.exp(-rho * i1)
+    i2 = jnp.where(cross, 0.5 * h * (1.0 - sstar) * a1, 0.0)
+    s2 = jnp.sign(v1)
+    return s2 + (w - s2) * jnp.exp(-rho * i2)
 
 
 def _bw_rate(delta, beta, gamma, n, vmax):
@@ -66,6 +109,7 @@ class BoucWen(AbstractModel):
     fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True
+    rk4_limit: ClassVar[int] = 3  # above, the L-stable scheme's Jacobian pass is cheaper
     description: ClassVar[str] = "Bouc-Wen: f = c*v + k*x + alpha*z + f0, z' = BW(delta, beta, gamma, n)"
 
 
@@ -82,12 +126,23 @@ class BoucWen(AbstractModel):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         names = self.param_names
 
-        def rhs(state, xi, vi, p):
-            delta, beta, gamma, n = split_theta(p, names, "delta", "beta", "gamma", "n")
-            return _bw_zdot(state, vi, delta, beta, gamma, n)
+        def shape(p):
+            return split_theta(p, names, "delta", "beta", "gamma", "n")
 
-        m = self._substeps_for(theta, xdot, dt)
-        z = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)
+        def rhs(state, xi, vi, p):
+            return _bw_zdot(state, vi, *shape(p))
+
+        def lin(state, xi, vi, p):
+            zd, dz, _ = bw_zdot_lin(state[0], vi, *shape(p))
+            return zd[None], dz[None, None]
+
+        def box(p):
+            zm = bw_zmax(*shape(p))
+            return -zm, zm
+
+        m, scheme = self.integration(theta, xdot, dt)
+        z = integrate(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m, scheme=scheme,
+                      linearize=lin, box=box)
         return z, jnp.zeros_like(xdot)
 
 
@@ -125,6 +180,7 @@ class ModifiedBoucWen(AbstractModel):
     )
     fixed_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
     dynamic: ClassVar[bool] = True
+    rk4_limit: ClassVar[int] = 6  # above, the L-stable scheme's Jacobian pass is cheaper
     description: ClassVar[str] = "Modified Bouc-Wen (Spencer 1997): f = c1*y' + k1*x + f0"
 
 
@@ -156,14 +212,32 @@ class ModifiedBoucWen(AbstractModel):
             y, z = state[0], state[1]
             return (c0 * vi + k0 * (xi - y) + alpha * z) / (c0 + c1)
 
-        def rhs(state, xi, vi, p):
-            delta, beta, gamma, n = split_theta(p, names, "delta", "beta", "gamma", "n")
-            yd = ydot_of(state, xi, vi, p)
-            return jnp.stack([yd, _bw_zdot(state[1], vi - yd, delta, beta, gamma, n)])
+        def shape(p):
+            return split_theta(p, names, "delta", "beta", "gamma", "n")
 
-        m = self._substeps_for(theta, xdot, dt)
+        def rhs(state, xi, vi, p):
+            yd = ydot_of(state, xi, vi, p)
+            return jnp.stack([yd, _bw_zdot(state[1], vi - yd, *shape(p))])
+
+        def lin(state, xi, vi, p):
+            # J = [[-k0/D, alpha/D], [Z_u k0/D, Z_z - Z_u alpha/D]], D = c0 + c1, u = xdot - ydot
+            c0, k0, c1, alpha = split_theta(p, names, "c0", "k0", "c1", "alpha")
+            D = c0 + c1
+            yd = ydot_of(state, xi, vi, p)
+            zd, zz, zu = bw_zdot_lin(state[1], vi - yd, *shape(p))
+            J = jnp.stack([jnp.stack([-k0 / D, alpha / D]),
+                           jnp.stack([zu * k0 / D, zz - zu * alpha / D])])
+            return jnp.stack([yd, zd]), J
+
+        def box(p):
+            zm = bw_zmax(*shape(p))
+            inf = jnp.full_like(zm, jnp.inf)
+            return jnp.stack([-inf, -zm]), jnp.stack([inf, zm])
+
+        m, scheme = self.integration(theta, xdot, dt)
         y0 = jnp.stack([x[0], jnp.zeros((), x.dtype)])
-        states = rk4_scan(rhs, y0, theta, x, xdot, dt, m)
+        states = integrate(rhs, y0, theta, x, xdot, dt, m, scheme=scheme, linearize=lin,
+                           box=box)
         th = jnp.broadcast_to(theta, (x.shape[0], theta.shape[-1])) if theta.ndim == 1 else theta
         yd = ydot_of(states.T, x, xdot, th)
         (c1,) = split_theta(theta, names, "c1")
@@ -194,7 +268,8 @@ class Dahl(AbstractModel):
         return jnp.stack([xdot, x, jnp.ones_like(xdot)], axis=-1)
 
     def stiffness(self, theta, vmax):
-        return abs(float(theta[self.param_names.index("rho")])) * vmax
+        # integrated by its exact update (`dahl_flow`): no stiffness limit, one step per sample
+        return 0.0
 
     def hysteresis(self, theta, x, xdot, dt):
         theta = jnp.asarray(theta)
@@ -205,6 +280,10 @@ class Dahl(AbstractModel):
             (rho,) = split_theta(p, names, "rho")
             return rho * (vi - jnp.abs(vi) * state)
 
-        m = self._substeps_for(theta, xdot, dt)
-        w = rk4_scan(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m)
+        def flow(state, p, a, b, h):
+            (rho,) = split_theta(p, names, "rho")
+            return dahl_flow(state, rho, a[1], b[1], h)
+
+        # the exact update needs one step per sample whatever the stiffness
+        w = integrate(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, 1, flow=flow)
         return w, jnp.zeros_like(xdot)

@@ -1,27 +1,140 @@
-"""The one integrator of mrjax: fixed-step RK4 over a sampled record, as a `lax.scan`.
+r"""The one integrator of mrjax: one sampled record, one `lax.scan`, two schemes.
 
 Every ODE model (Bouc-Wen, modified Bouc-Wen, Dahl) only defines its right-hand side
-`rhs(state, x, xdot, theta) -> dstate/dt`; this module steps it over the record.
+`rhs(state, x, xdot, theta) -> dstate/dt` (and, optionally, its Jacobian, the box its state
+never leaves, or a closed-form update); :func:`integrate` steps it over the record.
 
 Inside each sample interval $[t_k, t_{k+1}]$ the excitation is interpolated linearly,
-$x(t_k + s\\,\\Delta t_k) = x_k + s (x_{k+1} - x_k)$ and likewise for $\\dot x$, and the interval is
-split into `substeps` equal RK4 steps. Parameters may be constant, shape `(P,)`, or vary per
+$x(t_k + s\,\Delta t_k) = x_k + s (x_{k+1} - x_k)$ and likewise for $\dot x$, and the interval is
+split into `substeps` equal steps. Parameters may be constant, shape `(P,)`, or vary per
 sample, shape `(T, P)`; a per-sample parameter is held constant over the interval that starts at
 its sample.
+
+**Schemes** (chosen by the sub-step policy, `mrjax.models.resolve_model`):
+
+- `"rk4"`: classic explicit Runge-Kutta, 4 right-hand sides per step. Cheap and very accurate
+    where the state equation is not stiff on the scale of the step, but unstable for
+    $|\lambda| h \gtrsim 2.8$: Spencer's 1997 set relaxes in ~0.05 ms and needs 15-17 steps per
+    sample at 1 kHz, and a swarm's box has far stiffer corners.
+- `"sdirk"`: Alexander's (1977) 2-stage L-stable, stiffly accurate SDIRK, $g = 1 - 1/\sqrt2$,
+    order 2, with 2 Newton iterations per stage and the Jacobian re-evaluated at each iterate
+    (at z = 0 the Jacobian of $|z|^n$ vanishes for n > 1, so a scheme that linearises only at
+    the start of an interval misses the stiff branch z is about to enter). Every iterate is
+    clipped onto a box the exact solution never leaves (Bouc-Wen:
+    $|z| \le (\delta/(\beta+\gamma))^{1/n}$): this removes the Newton overshoot from z = 0 and a
+    2-cycle on the kinked right-hand side, without changing the solution. One step per sample
+    keeps the force NRMSE against LSODA (rtol 1e-10) at or below 1.2e-3 for Spencer's set at 0,
+    1 and 2.25 V and the other test sets at 1 and 5 kHz (measured, `tests/test_models.py`,
+    benchmarks/integrator.md); every particle of a default box stays finite.
+- A model with a closed-form update per interval (`flow`, Dahl) uses it instead of either.
+
+Both are differentiable (forward and reverse mode agree with central finite differences to
+< 1e-9 in float64) and never raise: parameters that make the state diverge give non-finite
+values, which the fitness maps to `inf`.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+#: `rhs(state, x, xdot, theta) -> dstate/dt` for one instant.
 RHS = Callable[[Array, Array, Array, Array], Array]
+#: `linearize(state, x, xdot, theta) -> (rhs, J)`, J = d rhs / d state of shape (S, S).
+LIN = Callable[[Array, Array, Array, Array], tuple[Array, Array]]
+#: `box(theta) -> (lower, upper)`, each broadcastable to (S,): a region the state never leaves.
+BOX = Callable[[Array], tuple[ArrayLike, ArrayLike]]
+#: `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: closed-form update over one step.
+FLOW = Callable[[Array, Array, tuple[Array, Array], tuple[Array, Array], Array], Array]
+
+#: The schemes of :func:`integrate`.
+SCHEMES: tuple[str, ...] = ("rk4", "sdirk")
+#: SDIRK2 diagonal coefficient g = 1 - 1/sqrt(2) (L-stable, order 2).
+GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
+#: Newton iterations per SDIRK stage.
+NEWTON = 2
 
 
-def rk4_scan(
+def newton_solve(J: Array, gh: Array, r: Array) -> Array:
+    r"""Solve $(I - g h J)\,\delta = r$ for S = 1 or 2 in closed form, guarded.
+
+    If J has no eigenvalue with positive real part, $\det(I - ghJ) \ge 1$. A smaller
+    determinant flags a locally unstable branch (Bouc-Wen unloading with beta > gamma), where
+    $I - ghJ$ can be singular inside the step; the Newton matrix then falls back to
+    $I - gh\,\mathrm{diag}(\min(J_{ii}, 0))$ (determinant >= 1). The Newton matrix only affects
+    convergence, never the solution of the stage equation. S > 2: a plain solve.
+    """
+    S = J.shape[-1]
+    if S == 1:
+        return r / (1.0 - gh * jnp.minimum(J[0, 0], 0.0))
+    if S == 2:
+        a, b = 1.0 - gh * J[0, 0], -gh * J[0, 1]
+        c, d = -gh * J[1, 0], 1.0 - gh * J[1, 1]
+        det = a * d - b * c
+        bad = ~(det >= 1.0 - 1e-6)  # also catches NaN
+        a = jnp.where(bad, 1.0 - gh * jnp.minimum(J[0, 0], 0.0), a)
+        d = jnp.where(bad, 1.0 - gh * jnp.minimum(J[1, 1], 0.0), d)
+        b = jnp.where(bad, 0.0, b)
+        c = jnp.where(bad, 0.0, c)
+        det = jnp.where(bad, a * d, det)
+        return jnp.stack([d * r[0] - b * r[1], a * r[1] - c * r[0]]) / det
+    return jnp.linalg.solve(jnp.eye(S, dtype=J.dtype) - gh * J, r)
+
+
+def linearize_auto(rhs: RHS) -> LIN:
+    """Default `linearize`: `(rhs, J)` with J by forward-mode AD. Correct for any model; an
+    analytic one is cheaper (it shares the |z|^n evaluation with the right-hand side)."""
+
+    def lin(state, x, v, p):
+        J, f = jax.jacfwd(lambda s: (rhs(s, x, v, p),) * 2, has_aux=True)(state)
+        return f, J
+
+    return lin
+
+
+def _rk4_step(rhs: RHS, p, x0, dx, v0, dv, h, m: int):
+    """One RK4 sub-step of an interval split into `m`; `j` the sub-step index."""
+    frac = 1.0 / m
+
+    def f(y, s):
+        return rhs(y, x0 + s * dx, v0 + s * dv, p)
+
+    def sub(j, y):
+        s0 = jnp.asarray(j, h.dtype) * frac  # keeps a float32 run in float32
+        k1 = f(y, s0)
+        k2 = f(y + 0.5 * h * k1, s0 + 0.5 * frac)
+        k3 = f(y + 0.5 * h * k2, s0 + 0.5 * frac)
+        k4 = f(y + h * k3, s0 + frac)
+        return y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+    return sub
+
+
+def _sdirk_step(lin: LIN, proj, p, x0, dx, v0, dv, h, m: int):
+    """One SDIRK2 sub-step (see the module docstring)."""
+    gh = GAMMA * h
+
+    def stage(base, z, s):
+        xs, vs = x0 + s * dx, v0 + s * dv
+        for _ in range(NEWTON):
+            f, J = lin(z, xs, vs, p)
+            z = proj(z - newton_solve(J, gh, z - base - gh * f))
+        return z
+
+    def sub(j, y):
+        s0 = jnp.asarray(j, h.dtype) / m
+        y1 = stage(y, y, s0 + GAMMA / m)
+        base = y + ((1.0 - GAMMA) / GAMMA) * (y1 - y)  # y + (1 - g) h k1, k1 from stage 1
+        return stage(base, y1, s0 + 1.0 / m)
+
+    return sub
+
+
+def integrate(
     rhs: RHS,
     y0: Float[ArrayLike, " S"],
     theta: Float[ArrayLike, "*T P"],
@@ -29,8 +142,13 @@ def rk4_scan(
     xdot: Float[ArrayLike, " T"],
     dt: Float[ArrayLike, "*T"],
     substeps: int,
+    *,
+    scheme: str = "rk4",
+    linearize: LIN | None = None,
+    box: BOX | None = None,
+    flow: FLOW | None = None,
 ) -> Float[Array, "T S"]:
-    """Integrate `rhs` over a sampled record with fixed-step RK4.
+    """Integrate `rhs` over a sampled record.
 
     **Arguments:**
 
@@ -41,10 +159,17 @@ def rk4_scan(
     - `xdot`: velocity [m/s], shape `(T,)`.
     - `dt`: sample interval [s], a scalar or per sample `(T,)` (the interval after each sample;
         the last entry is unused).
-    - `substeps`: RK4 steps per sample interval (static).
+    - `substeps`: steps per sample interval (static).
+    - `scheme`: `"rk4"` or `"sdirk"` (static; see the module docstring).
+    - `linearize`: for `"sdirk"`, `(rhs, J)` at a point (default: `linearize_auto(rhs)`).
+    - `box`: for `"sdirk"`, `box(theta) -> (lower, upper)` the state never leaves (Newton
+        iterates are clipped onto it; +-inf allowed).
+    - `flow`: a closed-form update over one step; replaces the scheme.
 
     **Returns:** the state at every sample, shape `(T, S)`, with row 0 equal to `y0`.
     """
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     x = jnp.asarray(x)
     xdot = jnp.asarray(xdot)
     n = x.shape[0]
@@ -58,30 +183,53 @@ def rk4_scan(
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=x.dtype), (n,))[:-1]
     xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts) + ((theta[:-1],) if per_sample else ())
     m = int(substeps)
-    frac = 1.0 / m
+    lin = linearize if linearize is not None else linearize_auto(rhs)
+    S = y0.shape[0]
+
+    def projector(p):
+        if box is None:
+            return lambda z: z
+        lo, hi = box(p)
+        lo = jnp.broadcast_to(jnp.asarray(lo, y0.dtype), (S,))
+        hi = jnp.broadcast_to(jnp.asarray(hi, y0.dtype), (S,))
+        return lambda z: jnp.clip(z, lo, hi)
+
+    proj_const = None if per_sample or scheme != "sdirk" else projector(theta)
 
     def interval(y, inp):
         x0, x1, v0, v1, h_all = inp[:5]
         p = inp[5] if per_sample else theta
         dx, dv = x1 - x0, v1 - v0
-        h = h_all * frac
-
-        def f(y, s):
-            return rhs(y, x0 + s * dx, v0 + s * dv, p)
-
-        def sub(j, y):
-            s0 = j * frac
-            k1 = f(y, s0)
-            k2 = f(y + 0.5 * h * k1, s0 + 0.5 * frac)
-            k3 = f(y + 0.5 * h * k2, s0 + 0.5 * frac)
-            k4 = f(y + h * k3, s0 + frac)
-            return y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-
-        if m == 1:
-            y = sub(0, y)
+        h = h_all / m
+        if flow is not None:
+            def sub(j, y):
+                s0 = jnp.asarray(j, h.dtype) / m
+                s1 = s0 + 1.0 / m
+                return flow(y, p, (x0 + s0 * dx, v0 + s0 * dv), (x0 + s1 * dx, v0 + s1 * dv), h)
+        elif scheme == "rk4":
+            sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
         else:
-            y = jax.lax.fori_loop(0, m, sub, y, unroll=min(m, 4))
+            proj = proj_const if proj_const is not None else projector(p)
+            sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m)
+        if m <= 4:  # unrolled: static stage positions
+            for j in range(m):
+                y = sub(j, y)
+        else:
+            y = jax.lax.fori_loop(0, m, sub, y, unroll=4)
         return y, y
 
     _, ys = jax.lax.scan(interval, y0, xs)
     return jnp.concatenate([y0[None, :], ys], axis=0)
+
+
+def rk4_scan(
+    rhs: RHS,
+    y0: Float[ArrayLike, " S"],
+    theta: Float[ArrayLike, "*T P"],
+    x: Float[ArrayLike, " T"],
+    xdot: Float[ArrayLike, " T"],
+    dt: Float[ArrayLike, "*T"],
+    substeps: int,
+) -> Float[Array, "T S"]:
+    """:func:`integrate` with the RK4 scheme (kept for one release; arguments as there)."""
+    return integrate(rhs, y0, theta, x, xdot, dt, substeps, scheme="rk4")
