@@ -36,7 +36,7 @@ Method = Literal["pso", "pso+lm", "lm"]
 #: After a polish on the swarm's view, the polish of the full record stops at this multiple of
 #: `polish_tol`, or after `FULL_MAX_STEPS` steps (see `run_polish`).
 FULL_TOL_FACTOR = 100.0
-FULL_MAX_STEPS = 10
+FULL_MAX_STEPS = 4
 SwarmMode = Literal["separable", "full"]
 
 
@@ -305,7 +305,8 @@ def run_polish(p: Problem, start: SwarmStage) -> PolishStage:
             timings["polish_view"] = time.perf_counter() - t0
         # from the view's converged point the full record needs only a refinement (measured
         # on the 30 UTFSM tests, modified Bouc-Wen: it lowers the RMS by 0.02 % (median),
-        # 0.23 % at most, 95 % of that in the first 4 steps)
+        # 0.23 % at most, 95 % of that in the first 4 steps: 4 steps of the full record cost
+        # as much as the whole view polish)
         tol, steps = p.polish_tol, p.polish_steps
         if p.view is not None:
             tol, steps = tol * FULL_TOL_FACTOR, min(steps, FULL_MAX_STEPS)
@@ -398,7 +399,7 @@ def fit(
     - `polish_tol`: the polish stops when 8 steps lower the RMS by less than this fraction
         (see `mrjax.refine.lm_solve`); after a first polish on the swarm's view (see
         `swarm_view`) the full record is refined to `FULL_TOL_FACTOR` (100) times it, in at
-        most `FULL_MAX_STEPS` (10) steps.
+        most `FULL_MAX_STEPS` (4) steps.
     - `uncertainty`: compute std-errors and intervals (needs the polish machinery; also for
         `method="pso"`).
     - `progress`: show a progress bar (None: only on a TTY).
