@@ -2,7 +2,7 @@
 
 - NumPy fitness of the tanh model, vectorised over particles (one condition at a time).
 - NumPy RK4 of the Bouc-Wen and modified Bouc-Wen models: the same fixed-step RK4 as
-  `mrjax.models.rk4_scan` (same sub-steps, linear interpolation of the excitation inside a
+  `mrjax.models.integrate` (same sub-steps, linear interpolation of the excitation inside a
   sample interval), vectorised over particles with a Python loop over time.
 - pyswarms `GlobalBestPSO`, SciPy `differential_evolution` and evosax `PSO` drivers.
 

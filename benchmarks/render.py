@@ -240,9 +240,10 @@ def _ode_part(ode) -> list[str]:
         L += [
             f"### {name}",
             "",
-            r["work"] + f"; NumPy vs mrjax fitness max relative "
-            f"difference {r['numpy_vs_mrjax_max_rel_diff']:.1e} (finite fraction "
-            f"{r['finite_fraction']:.2f}).",
+            r["work"] + f"; NumPy vs mrjax RK4 fitness max relative "
+            f"difference {r['numpy_vs_mrjax_max_rel_diff']:.1e}; SDIRK vs RK4 fitness median "
+            f"relative difference {r.get('sdirk_vs_rk4_median_rel_diff', float('nan')):.1e} "
+            f"(finite fraction {r['finite_fraction']:.2f}).",
             "",
         ]
         rows = [_ode_row(k, v) for k, v in r["timings"].items()]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import dataclasses
 import json
 import math
@@ -88,6 +90,8 @@ class FitResult:
     @property
     def swarm(self) -> str:
         """Deprecated alias of `swarm_mode` (kept for one release)."""
+        warnings.warn("FitResult.swarm is deprecated: use FitResult.swarm_mode",
+                      DeprecationWarning, stacklevel=2)
         return self.swarm_mode
 
     @property

@@ -35,6 +35,8 @@ values, which the fitness maps to `inf`.
 
 from __future__ import annotations
 
+import warnings
+
 import math
 from collections.abc import Callable
 
@@ -231,5 +233,7 @@ def rk4_scan(
     dt: Float[ArrayLike, "*T"],
     substeps: int,
 ) -> Float[Array, "T S"]:
-    """:func:`integrate` with the RK4 scheme (kept for one release; arguments as there)."""
+    """Deprecated (one release): :func:`integrate` with `scheme="rk4"` (arguments as there)."""
+    warnings.warn("mrjax.models.rk4_scan is deprecated: use mrjax.models.integrate(..., "
+                  "scheme='rk4')", DeprecationWarning, stacklevel=2)
     return integrate(rhs, y0, theta, x, xdot, dt, substeps, scheme="rk4")

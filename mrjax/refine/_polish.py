@@ -149,7 +149,7 @@ def _polish_one(model, free_idx, max_steps, tol, theta0, lo, hi, x, xdot, dt, fo
     def fn(u, _):
         return res_theta(_to_theta(u, lo_f, hi_f))
 
-    sol = lm_solve(fn, u0, max_steps=max_steps, tol=tol)
+    sol = lm_solve(fn, u0, max_steps=max_steps, tol=tol, jacobian="forward")
     th_lm = full(_to_theta(sol.value, lo_f, hi_f))
 
     def score(th):
