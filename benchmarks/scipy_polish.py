@@ -63,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--tests", default=",".join(DEFAULT_TESTS))
     ap.add_argument("--data", default=None)
+    ap.add_argument("--max-nfev", type=int, default=220,
+                    help="SciPy's cap on residual evaluations per test (default 220: 20 "
+                    "finite-difference Jacobians of the 10 parameters)")
     args = ap.parse_args(argv)
 
     from scipy.optimize import least_squares
@@ -95,12 +98,13 @@ def main(argv: list[str] | None = None) -> int:
         th0 = np.clip(start.theta[i], lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         log(f"SciPy least_squares + solve_ivp on {c.label} ({c.n_samples} samples)")
         t0 = time.perf_counter()
-        sol = least_squares(r, th0, bounds=(lo, hi), x_scale="jac", max_nfev=200 * 11)
+        sol = least_squares(r, th0, bounds=(lo, hi), x_scale="jac", max_nfev=args.max_nfev)
         wall = time.perf_counter() - t0
         rows.append({"test": c.label, "samples": c.n_samples,
                      "start_nrmse_pct": 100 * float(start.rms[i]) / fmax,
                      "scipy_nrmse_pct": 100 * float(np.sqrt(np.mean(sol.fun ** 2))) / fmax,
                      "scipy_s": wall, "scipy_nfev": int(sol.nfev),
+                     "scipy_status": int(sol.status), "scipy_s_per_eval": wall / max(1, sol.nfev),
                      "mrjax_nrmse_pct": 100 * float(pol.rms[i]) / fmax})
         log(f"  {rows[-1]}")
     out = {"environment": environment(), "tests": rows, "mrjax_polish_warm_s": warm,
