@@ -3,7 +3,8 @@
     python -m benchmarks.scale_conditions [--sizes 36,360,3600,10000] [--memory 8GB]
                                           [--method pso]
 
-The tanh model (`kwok`; separable swarm, no polish by default: `--method pso`) on copies of the paper grid, each copy with its own noise (seed = copy index), every
+The tanh model (`kwok`; separable swarm, no polish by default: `--method pso`) on copies of
+the paper grid, each copy with its own noise (seed = copy index), every
 record 2,000 samples (the 1 Hz tests 2 cycles, the 2 Hz tests 4, at 1 kHz), under a memory
 budget (`max_memory`, default 8 GB). Each size runs in a fresh process, which reports its own
 peak RSS (`getrusage(RUSAGE_SELF).ru_maxrss`: everything, i.e. the interpreter, JAX, the
@@ -87,30 +88,39 @@ def main(argv: list[str] | None = None) -> int:
             return p.returncode
         row = json.loads(p.stdout.strip().splitlines()[-1])
         row["process_s"] = time.perf_counter() - t0
-        row["children_maxrss_bytes"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
         row["load_avg"] = os.getloadavg()
         rows.append(row)
         print(f"{n:>6} tests: fit {row['fit_s']:.1f} s, peak RSS "
               f"{row['peak_rss_bytes'] / 1e9:.2f} GB, chunks {row['chunk']['n_chunks']} x "
-              f"{row['chunk']['size']}, load {row['load_avg'][0]:.1f}", file=sys.stderr, flush=True)
-    machine = (f"{platform.machine()}, {os.cpu_count()} cores, "
-               f"{os.sysconf('SC_PHYS_PAGES') * os.sysconf('SC_PAGE_SIZE') / 2**30:.0f} GiB; "
-               f"python {platform.python_version()}")
-    lines = [f"Machine: {machine}. `python -m benchmarks.scale_conditions`; tanh model, "
-             f"{a.method}, {a.memory} budget, each size in a fresh process (cold: compilation "
-             f"included).", "",
-             "| tests | chunks x size | fit wall | per test | peak RSS | data | median RMS |",
-             "|---:|---:|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        lines.append(f"| {r['conditions']:,} | {r['chunk']['n_chunks']} x {r['chunk']['size']} | "
-                     f"{r['fit_s']:.0f} s | {1e3 * r['fit_s'] / r['conditions']:.1f} ms | "
-                     f"{r['peak_rss_bytes'] / 1e9:.2f} GB | {r['data_bytes'] / 1e6:.0f} MB | "
-                     f"{r['median_rms_N']:.2f} N |")
-    (HERE / "scale_conditions.md").write_text("\n".join(lines) + "\n")
-    (HERE / "scale_conditions.json").write_text(json.dumps(rows, indent=1) + "\n")
-    print("\n".join(lines))
+              f"{row['chunk']['size']}, load {row['load_avg'][0]:.1f}", file=sys.stderr,
+              flush=True)
+        write(rows, a)  # after every size: a long run keeps what it measured
     return 0
 
+
+def machine() -> str:
+    """The machine in words (cores, memory, Python)."""
+    mem = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**30
+    return (f"{platform.machine()} CPU, {os.cpu_count()} cores, {mem:.0f} GiB, shared with "
+            f"other jobs (1-min load average in the table); python {platform.python_version()}")
+
+
+def write(rows: list[dict], a: argparse.Namespace) -> None:
+    """`scale_conditions.json` (the rows) and `scale_conditions.md` (a table)."""
+    lines = [f"Machine: {machine()}. `python -m benchmarks.scale_conditions`: tanh model "
+             f"(`kwok`), method `{a.method}`, separable swarm, {a.memory} budget, each size in "
+             f"a fresh process (cold: compilation included; peak RSS of the whole process).",
+             "",
+             "| tests | chunks x size | fit wall | per test | peak RSS | data | median RMS | load |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['conditions']:,} | {r['chunk']['n_chunks']} x {r['chunk']['size']} | "
+                     f"{r['fit_s']:.0f} s | {1e3 * r['fit_s'] / r['conditions']:.0f} ms | "
+                     f"{r['peak_rss_bytes'] / 1e9:.2f} GB | {r['data_bytes'] / 1e6:.0f} MB | "
+                     f"{r['median_rms_N']:.1f} N | {r['load_avg'][0]:.1f} |")
+    (HERE / "scale_conditions.md").write_text("\n".join(lines) + "\n")
+    doc = {"machine": machine(), "method": a.method, "memory": a.memory, "rows": rows}
+    (HERE / "scale_conditions.json").write_text(json.dumps(doc, indent=1) + "\n")
 
 if __name__ == "__main__":
     sys.exit(main())
