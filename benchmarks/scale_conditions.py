@@ -118,6 +118,12 @@ def write(rows: list[dict], a: argparse.Namespace) -> None:
                      f"{r['fit_s']:.0f} s | {1e3 * r['fit_s'] / r['conditions']:.0f} ms | "
                      f"{r['peak_rss_bytes'] / 1e9:.2f} GB | {r['data_bytes'] / 1e6:.0f} MB | "
                      f"{r['median_rms_N']:.1f} N | {r['load_avg'][0]:.1f} |")
+    before = HERE / "scale_conditions_before.json"
+    if before.exists():  # measured once on the code before chunking (see that file)
+        b = json.loads(before.read_text())
+        lines += ["", f"Before chunking ({b['code']}): {b['conditions']:,} tests in one program, "
+                  f"fit {b['fit_s']:.0f} s, peak RSS {b['peak_rss_bytes'] / 1e9:.2f} GB; "
+                  f"{b['note']}"]
     (HERE / "scale_conditions.md").write_text("\n".join(lines) + "\n")
     doc = {"machine": machine(), "method": a.method, "memory": a.memory, "rows": rows}
     (HERE / "scale_conditions.json").write_text(json.dumps(doc, indent=1) + "\n")
