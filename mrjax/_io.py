@@ -118,3 +118,50 @@ def json_bytes(doc) -> bytes:
     """A report document as UTF-8 JSON text: :func:`json_safe` values, one key per line, lists
     of plain values kept on one line, a final newline (summary.json, predict.json, ...)."""
     return (_dumps(json_safe(doc)) + "\n").encode()
+
+
+#: Tags of an array and of a non-finite float in :func:`exact_encode`'s JSON.
+_ARRAY, _FLOAT = "__ndarray__", "__float__"
+
+
+def exact_encode(obj):
+    """Plain JSON values that decode (:func:`exact_decode`) to exactly the same data: NumPy
+    arrays as `{"__ndarray__": dtype, "shape": [...], "data": [flat values]}`, floats by `repr`
+    (the shortest text that reads back to the same float), a non-finite float as
+    `{"__float__": "nan"|"inf"|"-inf"}` (in a float array: the bare string); tuples become
+    lists. For state that must round-trip bit for bit
+    (the journal of a chunked fit); reports use :func:`json_safe` (NaN -> null)."""
+    if isinstance(obj, dict):
+        return {str(k): exact_encode(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [exact_encode(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        flat = obj.ravel().tolist()
+        if obj.dtype.kind == "f":
+            flat = [v if math.isfinite(v) else repr(v) for v in flat]
+        return {_ARRAY: obj.dtype.str, "shape": list(obj.shape), "data": flat}
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else {_FLOAT: repr(v)}
+    return obj
+
+
+def exact_decode(obj):
+    """Inverse of :func:`exact_encode` (lists stay lists)."""
+    if isinstance(obj, dict):
+        if _ARRAY in obj:
+            dtype = np.dtype(obj[_ARRAY])
+            data = obj["data"]
+            if dtype.kind == "f":
+                data = [float(v) for v in data]
+            return np.asarray(data, dtype=dtype).reshape(obj["shape"])
+        if _FLOAT in obj:
+            return float(obj[_FLOAT])
+        return {k: exact_decode(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [exact_decode(v) for v in obj]
+    return obj

@@ -25,7 +25,11 @@ every process first; `jax.devices()` then lists the devices of all hosts and
 `shard_batch(..., devices="all")` fills each host's devices with its share of the conditions.
 `mrjax.fit` converts its per-condition results to NumPy on the host, which needs every shard
 addressable (one process); across hosts use the swarm directly and gather its results with
-`jax.experimental.multihost_utils.process_allgather` (recipe in the README).
+`jax.experimental.multihost_utils.process_allgather` (the README's recipe,
+`examples/multihost.py`, which `tests/test_multihost.py` runs as two processes).
+
+:func:`take_conditions` selects conditions keeping the padded length: the chunks of a fit of
+many tests (`mrjax.fitting.fit_in_chunks`) and the device padding are built with it.
 """
 
 from __future__ import annotations
@@ -105,11 +109,32 @@ def pad_conditions(batch: Batch, mask: Any, multiple: int) -> tuple[Batch, Any, 
     if Cp == C:
         return batch, mask, C
     idx = np.concatenate([np.arange(C), np.full(Cp - C, C - 1)])
+    labels = tuple(batch.labels) + tuple(f"{batch.labels[-1]}#pad{k}" for k in range(Cp - C))
+    padded, padded_mask = take_conditions(batch, idx, mask, labels=labels)
+    return padded, padded_mask, C
+
+
+def take_conditions(batch: Batch, index: Any, mask: Any = None, *,
+                    labels: Sequence[str] | None = None) -> tuple[Batch, Any]:
+    """The conditions at `index` (ints, repeats allowed, or a boolean mask), *keeping the padded
+    length T* of `batch` (unlike `Batch.subset`, which re-pads to the subset's own longest
+    record): every row is bit for bit the row of `batch`, so a fit of the rows computes
+    exactly what a fit of the whole batch computes for them (sums over the same T samples).
+
+    **Arguments:** `batch`; `index`; `mask` (C, T) samples to score (default `batch.mask`),
+    taken alike; `labels` of the new rows (default those of `batch`).
+
+    **Returns:** `(batch, mask)` with host-built arrays on JAX's default device.
+    """
+    idx = np.arange(batch.n_conditions)[np.asarray(index)]
+    mask = batch.mask if mask is None else mask
     arrays = {f.name: np.asarray(getattr(batch, f.name))[idx]
               for f in dataclasses.fields(batch) if f.name != "labels"}
-    labels = tuple(batch.labels) + tuple(f"{batch.labels[-1]}#pad{k}" for k in range(Cp - C))
-    padded = Batch(**{k: jax.numpy.asarray(v) for k, v in arrays.items()}, labels=labels)
-    return padded, jax.numpy.asarray(np.asarray(mask)[idx]), C
+    names = tuple(batch.labels[int(i)] for i in idx) if labels is None else tuple(labels)
+    if len(names) != idx.size:
+        raise InputError(f"take_conditions: {len(names)} labels for {idx.size} conditions")
+    taken = Batch(**{k: jax.numpy.asarray(v) for k, v in arrays.items()}, labels=names)
+    return taken, jax.numpy.asarray(np.asarray(mask)[idx])
 
 
 def shard_batch(batch: Batch, mask: Any = None, devices: Devices = "all") -> tuple[Batch, Any]:

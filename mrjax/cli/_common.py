@@ -16,6 +16,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, Condition, DataSpec, describe, find_files, load, make_batch
+from ..fitting import parse_memory
 from ..models import AbstractModel, check_bounds
 
 DEFAULT_OUT = "mrjax-out"
@@ -58,6 +59,42 @@ def positive_int(text: str) -> int:
 def nonneg_int(text: str) -> int:
     """argparse type: an integer >= 0."""
     return _int_at_least(text, 0, "a non-negative integer")
+
+
+def memory_size(text: str) -> int:
+    """argparse type: a memory size such as `8GB`, `512MB` (see `mrjax.fitting.parse_memory`)."""
+    try:
+        return parse_memory(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def device_count(text: str) -> int | str:
+    """argparse type: `all` or a positive number of devices."""
+    if text.strip().lower() == "all":
+        return "all"
+    return _int_at_least(text, 1, "a positive number of devices or 'all'")
+
+
+def add_scale_options(parser: argparse.ArgumentParser, *, journal: bool) -> None:
+    """`--memory`, `--devices` (and for `mrjax fit`, `--chunk-size` and `--resume`): how a
+    fit of many tests uses the machine; none of them changes the results."""
+    g = parser.add_argument_group(
+        "many tests", "how the fit uses the machine; the results do not depend on these "
+        "(see 'Thousands of tests' in the README)")
+    g.add_argument("--memory", type=memory_size, metavar="SIZE",
+                   help="memory budget, e.g. 8GB or 512MB: the tests are fitted in chunks "
+                   "whose estimated memory fits it (default: half of the available memory)")
+    g.add_argument("--devices", type=device_count, metavar="N|all",
+                   help="shard each chunk's tests over the first N local JAX devices, or all "
+                   "(default one; on a CPU, set XLA_FLAGS=--xla_force_host_platform_device_"
+                   "count=N to expose N devices)")
+    if journal:
+        g.add_argument("--chunk-size", type=positive_int, metavar="N",
+                       help="tests per chunk instead of --memory")
+        g.add_argument("--resume", action="store_true",
+                       help="reuse the chunks an interrupted run left in DIR/.mrjax-journal "
+                       "(same data and options required) and fit only the missing ones")
 
 
 def transient(text: str) -> float | str:

@@ -10,6 +10,7 @@ from ..comparison import compare
 from ._common import (
     DEFAULT_OUT,
     add_data_options,
+    add_scale_options,
     data_spec,
     load_batch,
     load_batches,
@@ -62,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     folds = parse_folds(args.folds) if args.folds is not None else None
     fit_options = dict(method=args.method, restarts=args.restarts, n_particles=args.particles,
                        max_generations=args.max_generations, polish_steps=args.polish_steps,
-                       transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None)
+                       transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None,
+                       max_memory=args.memory, devices=args.devices)
     spec = data_spec(args)
     if args.validate:
         batch, validate = load_batches([args.files, args.validate], spec)
@@ -125,5 +127,6 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    add_scale_options(p, journal=False)
     add_data_options(p)
     p.set_defaults(func=run)

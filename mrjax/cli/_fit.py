@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from ..objective import fit_mask
 from ._common import (
     DEFAULT_OUT,
     add_data_options,
+    add_scale_options,
     data_spec,
     force_figures,
     load_batch,
@@ -26,6 +28,9 @@ from ._common import (
     transient,
     use_agg,
 )
+
+#: Where `mrjax fit` keeps the finished chunks of a run, inside its output directory.
+JOURNAL = ".mrjax-journal"
 
 
 def figures(result, batch, gm) -> dict[str, bytes]:
@@ -71,12 +76,15 @@ def run(args: argparse.Namespace) -> int:
     C = batch.n_conditions
     how = args.method if args.method == "lm" else f"{args.method}, {args.swarm} swarm"
     say(f"fitting {model.name} on {C} condition{'s' if C != 1 else ''} ({how})...")
+    journal = out / JOURNAL
     result = fit(
         model, batch, method=args.method, swarm_mode=args.swarm, seed=args.seed,
         n_particles=args.particles,
         max_generations=args.max_generations if args.max_generations is not None else 200,
         generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
-        swarm_dtype=args.swarm_dtype, restarts=args.restarts,
+        swarm_dtype=args.swarm_dtype, restarts=args.restarts, devices=args.devices,
+        max_memory=args.memory, chunk_size=args.chunk_size, journal=journal,
+        resume=args.resume,
     )
     gm = None
     if args.generalize:
@@ -90,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
         files.update(figures(result, batch, gm))
     say(f"writing {len(files)} files to {out}...")
     atomic_output(out, files)
-    print(result.table())
+    shutil.rmtree(journal, ignore_errors=True)  # the outputs hold everything it held
+    print(result.table(max_rows=args.max_rows))
     if gm is not None:
         print()
         print(gm.summary())
@@ -103,7 +112,10 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
         "fit", parents=[common], help="identify a model on every test condition",
         description="Fit one model to every test in the given files at once and write fit.json, "
         "fit.csv and figures into --out (atomically: all files or none): F-x and F-v loops of "
-        "periodic tests, force against time (whole, zoomed, residual) of random records.")
+        "periodic tests, force against time (whole, zoomed, residual) of random records. Many "
+        "tests are fitted in chunks that fit --memory; each finished chunk is kept in "
+        "DIR/.mrjax-journal until the outputs are written, so that an interrupted run "
+        "continues with --resume.")
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
                    "the data options below)")
@@ -137,5 +149,8 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
+                   help="print at most N rows of the result table (default all)")
+    add_scale_options(p, journal=True)
     add_data_options(p)
     p.set_defaults(func=run)

@@ -22,7 +22,7 @@ from ._result import CompareResult
 #: Options of `mrjax.fit` that `compare` passes on (the same for every model).
 FIT_OPTIONS = ("method", "swarm_mode", "transient", "n_particles", "max_generations",
                "generations", "pso_params", "polish_steps", "uncertainty", "progress", "devices",
-               "swarm_dtype", "restarts")
+               "swarm_dtype", "restarts", "max_memory", "chunk_size")
 #: Options of `mrjax.generalize.generalize` that `compare` passes on.
 GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "n_particles", "max_generations",
                       "pso_params", "polish", "polish_steps")
@@ -177,7 +177,8 @@ def compare(
     - `**fit_options`: options of `mrjax.fit`, the same for every model (`method`,
         `swarm_mode`, `transient`, `n_particles`, `max_generations`, `generations`,
         `pso_params`, `polish_steps`, `uncertainty`, `progress`, `devices`, `swarm_dtype`,
-        `restarts`). With `transient`, the criteria and held-out scores use the same scored
+        `restarts`, `max_memory`, `chunk_size`: each model's fit runs in chunks of bounded
+        memory). With `transient`, the criteria and held-out scores use the same scored
         samples as the fit.
 
     **Returns:** a :class:`CompareResult` (`.table()`, `.summary()`, `.ranking`,

@@ -8,11 +8,25 @@ print(res.table())
 res.params_of(0)          # {'c': ..., 'k': ..., ...}
 ```
 
-`fit` runs four stages (`prepare`, `run_swarm`, `run_polish`, `evaluate`) and returns a
-:class:`FitResult`; :func:`save` and `FitResult.to_json` are the one writer of `fit.json`.
+`fit` runs four stages (`prepare`, `run_swarm`, `run_polish`, `evaluate`) on chunks of the
+condition axis sized by a memory budget (`fit_in_chunks`, `plan_chunks`; a `Journal` lets an
+interrupted fit resume) and returns a :class:`FitResult`; :func:`save` and `FitResult.to_json`
+are the one writer of `fit.json`.
 The package is named `fitting` so that the function `mrjax.fit` does not hide a module.
 """
 
+from ._chunks import DEFAULT_MEMORY_FRACTION as DEFAULT_MEMORY_FRACTION
+from ._chunks import ChunkPlan as ChunkPlan
+from ._chunks import Journal as Journal
+from ._chunks import available_memory as available_memory
+from ._chunks import chunk_plan as chunk_plan
+from ._chunks import condition_bytes as condition_bytes
+from ._chunks import condition_keys as condition_keys
+from ._chunks import fit_in_chunks as fit_in_chunks
+from ._chunks import parse_memory as parse_memory
+from ._chunks import plan_chunks as plan_chunks
+from ._chunks import resident_bytes as resident_bytes
+from ._chunks import run_stages as run_stages
 from ._result import FitResult as FitResult
 from ._result import csv_cell as csv_cell
 from ._result import save as save

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, json_safe
+from .._io import atomic_output, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model
 
@@ -112,16 +113,72 @@ class FitResult:
         fit of those conditions; `mrjax.compare` generalizes each fold's training tests from
         it instead of fitting them again.
         """
-        C = self.n_conditions
-        idx = np.arange(C)[np.asarray(index)]
+        idx = np.arange(self.n_conditions)[np.asarray(index)]
         changes: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == C:
-                changes[f.name] = v[idx]
-            elif isinstance(v, tuple) and len(v) == C:
-                changes[f.name] = tuple(v[int(i)] for i in idx)
+        for name in self._per_condition():
+            v = getattr(self, name)
+            changes[name] = tuple(v[int(i)] for i in idx) if isinstance(v, tuple) else v[idx]
         return dataclasses.replace(self, **changes)
+
+    def _per_condition(self) -> list[str]:
+        """Names of the per-condition fields (leading length C), as :meth:`subset` slices."""
+        C = self.n_conditions
+        return [f.name for f in dataclasses.fields(self)
+                if (isinstance(v := getattr(self, f.name), np.ndarray) and v.ndim >= 1
+                    and v.shape[0] == C) or (isinstance(v, tuple) and len(v) == C)]
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[FitResult]) -> FitResult:
+        """The results of `parts` (fits of disjoint conditions with the same model and
+        options, e.g. the chunks of one fit) as one result, conditions in the order given:
+        every per-condition field is concatenated, the rest taken from the first part;
+        `timings` are summed per stage [s]."""
+        parts = list(parts)
+        if not parts:
+            raise InputError("concatenate needs at least one FitResult")
+        first = parts[0]
+        if len(parts) == 1:
+            return first
+        changes: dict[str, Any] = {}
+        for name in first._per_condition():
+            vals = [getattr(p, name) for p in parts]
+            changes[name] = (sum(vals, ()) if isinstance(vals[0], tuple)
+                             else np.concatenate(vals, axis=0))
+        timings: dict[str, float] = {}
+        for p in parts:
+            for k, v in p.timings.items():
+                timings[k] = timings.get(k, 0.0) + float(v)
+        return dataclasses.replace(first, timings=timings, **changes)
+
+    def to_state(self) -> dict[str, Any]:
+        """Every field but `model` as plain JSON values that :meth:`from_state` turns back
+        into the same result bit for bit (see `mrjax._io.exact_encode`); `"model"` is the
+        model's name. Used by the journal of a chunked fit."""
+        state = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                 if f.name != "model"}
+        return exact_encode(dict(state, model=self.model.name))
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any], model: AbstractModel) -> FitResult:
+        """Inverse of :meth:`to_state`, with the model object `model` (whose name must match).
+
+        Raises :class:`mrjax.InputError` for a state of another model or a missing field.
+        """
+        values = exact_decode(state)
+        if values.get("model") != model.name:
+            raise InputError(f"saved fit is of model {values.get('model')!r}, not "
+                             f"{model.name!r}")
+        kw: dict[str, Any] = {"model": model}
+        for f in dataclasses.fields(cls):
+            if f.name == "model":
+                continue
+            if f.name not in values:
+                if f.default is dataclasses.MISSING:
+                    raise InputError(f"saved fit lacks the field {f.name!r}")
+                continue
+            v = values[f.name]
+            kw[f.name] = tuple(v) if isinstance(v, list) else v
+        return cls(**kw)
 
     def params_of(self, i: int) -> dict[str, float]:
         """Parameters of condition `i` by name [SI units]."""

@@ -159,7 +159,12 @@ def prepare(model: str | AbstractModel, data: Any, options: Mapping[str, Any]) -
     batch on the devices.
 
     **Arguments:** `model`, `data` as `mrjax.fit`; `options` the keyword arguments of
-    `mrjax.fit` (all of them, by name: `method`, `swarm_mode`, `key`, `seed`, ...).
+    `mrjax.fit` (all of them, by name: `method`, `swarm_mode`, `key`, `seed`, ...). `key` may
+    also be one key per swarm row (`restarts` x C, copy k of condition i at row k*C + i: how
+    the chunk layer gives each condition the stream it has in the whole batch), and the
+    optional `view_length` pads the swarm's view to that many samples (the view length of the
+    whole batch, so that every chunk sums over the same samples); `checked=True` skips the
+    checks of the records (a chunk of a batch that passed them).
 
     Raises :class:`mrjax.InputError`.
     """
@@ -176,7 +181,8 @@ def prepare(model: str | AbstractModel, data: Any, options: Mapping[str, Any]) -
     source = as_batch(data)
     lo, hi = check_bounds(model, o["bounds"])
     mask = fit_mask(source, o["transient"])
-    _check_records(model, source, mask)
+    if not o.get("checked"):  # a chunk of a batch checked as a whole is not checked again
+        _check_records(model, source, mask)
     if key is None:
         key = jax.random.key(int(seed))
     if generations is not None:
@@ -191,7 +197,8 @@ def prepare(model: str | AbstractModel, data: Any, options: Mapping[str, Any]) -
     use_view = o["swarm_view"]
     if use_view is None:
         use_view = model.dynamic
-    view = swarm_view(source, o["transient"]) if use_view and method != "lm" else None
+    view = (swarm_view(source, o["transient"], length=o.get("view_length"))
+            if use_view and method != "lm" else None)
     swarm_options = dict(mode=swarm_mode, bounds=(lo, hi), params=pso_params,
                          n_particles=o["n_particles"], max_generations=int(max_generations),
                          dtype=o["swarm_dtype"])
@@ -385,6 +392,10 @@ def fit(
     swarm_dtype: Any = None,
     restarts: int = 1,
     swarm_view: bool | None = None,
+    max_memory: int | float | str | None = None,
+    chunk_size: int | None = None,
+    journal: str | os.PathLike | None = None,
+    resume: bool = False,
     swarm: SwarmMode | None = None,
 ) -> FitResult:
     """Identify `model` on every test condition of `data` at once.
@@ -416,7 +427,8 @@ def fit(
     - `progress`: show a progress bar (None: only on a TTY).
     - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
         `jax.Device` (default: one device); see `mrjax.parallel`. Same key, same result.
-    - `callback`: host callback for the swarm, see `mrjax.pso.swarm`.
+    - `callback`: host callback for the swarm, see `mrjax.pso.swarm` (called per chunk, with
+        the chunk's conditions).
     - `swarm_dtype`: float dtype of the swarm's search, e.g. `"float32"` (about twice as fast
         on CPU; see benchmarks/results.md). Default: the default float (float64 when x64 is
         on). The swarm's best positions are re-scored, polished and reported in float64.
@@ -430,9 +442,26 @@ def fit(
         `mrjax.fitting.swarm_view`), then polish on the full record. `None` (default): for the
         ODE models only, whose cost is one sequential integrator step per sample. Every
         reported RMS, including `pso_rms`, is on the full record.
+    - `max_memory`: memory budget of the fit [bytes], or text such as `"8GB"`, `"512MB"`.
+        The conditions are fitted in chunks whose estimated working set fits it, every chunk
+        with the same shape (one compiled program) and each condition with its own random
+        stream, so the result does not depend on the chunking (see `mrjax.fitting.ChunkPlan`;
+        for the RK4 ODE models, up to their sub-step choice). Default: the memory the process
+        holds plus half of what is available (`DEFAULT_MEMORY_FRACTION`). A budget too small
+        for the data and one chunk raises.
+    - `chunk_size`: conditions per chunk instead of a budget (raised to the smallest chunk
+        that keeps the result independent of the chunking, a multiple of the device count;
+        see `mrjax.fitting.plan_chunks`).
+    - `journal`: a directory where each finished chunk is written (atomically) when the fit
+        has more than one chunk; `resume=True` reuses the chunks it holds, after checking that
+        they were written for the same data and options, and fits only the missing ones.
+        Without `resume` an existing journal is discarded. The journal is left in place (the
+        `mrjax fit` command removes it after writing its outputs); see `mrjax.fitting.Journal`.
+    - `resume`: see `journal`.
 
     The work runs in four stages (:func:`prepare`, :func:`run_swarm`, :func:`run_polish`,
-    :func:`evaluate`), each timed in `FitResult.timings` [s].
+    :func:`evaluate`) per chunk (`mrjax.fitting.fit_in_chunks`), each timed in
+    `FitResult.timings` [s] (summed over the chunks).
 
     **Returns:** a :class:`FitResult`.
 
@@ -446,23 +475,8 @@ def fit(
         warnings.warn("fit(swarm=...) is deprecated; use swarm_mode=", DeprecationWarning,
                       stacklevel=2)
         options["swarm_mode"] = swarm
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    p = prepare(model, data, options)
-    timings["prepare"] = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    sw = run_swarm(p)
-    if method != "lm":
-        timings["swarm"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    pol = run_polish(p, sw)
-    timings.update(pol.timings)
-    if method != "pso":
-        timings["polish"] = time.perf_counter() - t1
-    elif uncertainty:
-        timings["uncertainty"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    result = evaluate(p, sw, pol, timings)
-    timings["evaluate"] = time.perf_counter() - t1
-    timings["total"] = time.perf_counter() - t0
-    return result
+    # the chunk layer sits above the stages and calls them (imported here: it imports this
+    # module)
+    from ._chunks import fit_in_chunks
+
+    return fit_in_chunks(model, data, options)

@@ -68,12 +68,14 @@ def view_plan(cond: Condition) -> tuple[int, int]:
     return step, min(n, math.ceil(periods * period))
 
 
-def swarm_view(batch: Batch, transient: float | str | None = None) -> View:
-    """The swarm's view of every condition of `batch` (padded to the longest view), with its
+def swarm_view(batch: Batch, transient: float | str | None = None, *,
+               length: int | None = None) -> View:
+    """The swarm's view of every condition of `batch` (padded to the longest view, or to
+    `length` samples: the chunks of one fit share the view length of the whole batch), with its
     fit mask (the same `transient` rule as the full fit)."""
     conds = batch.conditions()
     plans = [view_plan(c) for c in conds]
     views = [c.subsample(step, stop) for c, (step, stop) in zip(conds, plans)]
-    vb = make_batch(views)
+    vb = make_batch(views, length=length)
     return View(batch=vb, mask=fit_mask(vb, transient), step=np.array([p[0] for p in plans]),
                 stop=np.array([p[1] for p in plans]))
