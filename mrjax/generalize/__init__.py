@@ -80,7 +80,13 @@ the force is out of reach.
 """
 
 from ._generalize import generalize as generalize
+from ._identify import DELTA_RANGE as DELTA_RANGE
+from ._identify import LAG_BOUNDS as LAG_BOUNDS
+from ._identify import Q_RANGE as Q_RANGE
+from ._identify import command_unit_of as command_unit_of
+from ._identify import identify as identify
 from ._inverse import inverse_current as inverse_current
+from ._laws import COMMAND_UNITS as COMMAND_UNITS
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS
 from ._laws import Z_SCALE_MODELS as Z_SCALE_MODELS
@@ -89,4 +95,12 @@ from ._laws import canonical_z_scale as canonical_z_scale
 from ._laws import default_degrees as default_degrees
 from ._laws import group_currents as group_currents
 from ._laws import lag_current as lag_current
+from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
+from ._model import LawUncertainty as LawUncertainty
+from ._records import SPENCER_1997 as SPENCER_1997
+from ._records import command_record as command_record
+from ._records import random_command as random_command
+from ._records import random_motion as random_motion
+from ._records import sine_record as sine_record
+from ._records import spencer_1997 as spencer_1997

@@ -12,6 +12,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
@@ -94,6 +95,7 @@ def lm_solve(
     *,
     max_steps: int,
     tol: ArrayLike = DEFAULT_TOL,
+    jacobian: str = "linearize",
 ) -> LMSolution:
     r"""Minimise $\tfrac12\|r(y)\|^2$ by Levenberg-Marquardt (optimistix) from `y0`.
 
@@ -112,6 +114,13 @@ def lm_solve(
         not tested: a parameter crawling along a flat direction (an active bound, a redundant
         pair) no longer changes the RMS and does not keep the solve going. A runtime value
         (no recompilation).
+    - `jacobian`: how the damped step gets the Jacobian (static). `"linearize"` (default):
+        optimistix's `jax.linearize`, whose normal equations then push P tangents forward and
+        P cotangents backward through `fn` each step. `"forward"`: the Jacobian is
+        materialised once per step by forward mode, value and all P tangents in one pass (a
+        custom JVP rule `J @ dy`), so the damped solve only multiplies matrices: for a long
+        `lax.scan` residual (a dynamic model on 10^4-10^5 samples) a step costs one forward
+        pass instead of about three, and no residuals of the scan are stored. Memory N x P.
 
     Never raises on failure (`throw=False`): under `vmap` one failed problem reports its status
     instead of stopping the batch. Jittable.
@@ -121,6 +130,11 @@ def lm_solve(
     r0 = jax.lax.stop_gradient(fn(y0, args))
     scale = _norm(r0)
     scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
+
+    if jacobian not in ("linearize", "forward"):
+        raise ValueError(f"jacobian must be 'linearize' or 'forward', got {jacobian!r}")
+    if jacobian == "forward":
+        fn = _forward_jacobian(fn)
 
     def relative(y, a):
         r = fn(y[_VARIABLES], a) / scale
@@ -160,6 +174,27 @@ def lm_solve(
              jnp.asarray(max_steps < 1), jnp.int32(ok))
     y, _, steps, _, _, code = jax.lax.while_loop(cond, body, start)
     return LMSolution(value=y[_VARIABLES], steps=steps, status=code)
+
+
+def _forward_jacobian(fn: Callable[[PyTree, Any], Array]) -> Callable[[PyTree, Any], Array]:
+    """`fn` with a JVP rule that materialises its Jacobian by forward mode (value and every
+    tangent of `y` in one pass): linearising it stores J (N, P), and the linear map is
+    `J @ dy` (its transpose `J.T @ ct`). `args` are data: their tangents are ignored."""
+
+    @jax.custom_jvp
+    def f(y, args):
+        return fn(y, args)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        y, args = primals
+        dy, _ = tangents
+        flat, unravel = jax.flatten_util.ravel_pytree(y)
+        J, r = jax.jacfwd(lambda v: (fn(unravel(v), args),) * 2, has_aux=True)(flat)
+        dflat, _ = jax.flatten_util.ravel_pytree(dy)
+        return r, (J.reshape(r.size, flat.size) @ dflat).reshape(r.shape)
+
+    return f
 
 
 def _norm(r: PyTree) -> Array:
