@@ -80,12 +80,13 @@ the force is out of reach.
 """
 
 from ._generalize import generalize as generalize
-from ._identify import DELTA_RANGE as DELTA_RANGE
 from ._identify import LAG_BOUNDS as LAG_BOUNDS
-from ._identify import Q_RANGE as Q_RANGE
 from ._identify import command_unit_of as command_unit_of
 from ._identify import identify as identify
 from ._inverse import inverse_current as inverse_current
+from ._joint import DELTA_RANGE as DELTA_RANGE
+from ._joint import LOG_FLOOR as LOG_FLOOR
+from ._joint import Q_RANGE as Q_RANGE
 from ._laws import COMMAND_UNITS as COMMAND_UNITS
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS

@@ -25,6 +25,7 @@ from ._joint import (
     JointOutcome,
     JointProblem,
     Layout,
+    bounded_box,
     build_objective,
     joint_fit,
     make_rows,
@@ -154,18 +155,40 @@ def _search_box(model: AbstractModel, start: TwoStep):
 
 
 def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool) -> JointProblem:
-    """The joint fit's problem around the two-step laws (box of :func:`_search_box`)."""
+    """The joint fit's problem around the two-step laws: the swarm searches the box of
+    :func:`_search_box` (a Bouc-Wen shape as `(log delta, q)` around the per-condition values),
+    intersected with the polish's box (`bounded_box`: every node value within the model's
+    bounds)."""
     nu0, half, box_lo, box_hi = _search_box(model, start)
-    obj = build_objective(model, start.layout, nu0, z_scale=model.name in Z_SCALE_MODELS)
-    idx = list(obj.coding.direct)
+    names, kinds, sizes = model.param_names, start.layout.kinds, start.layout.sizes
+    z_scale = model.name in Z_SCALE_MODELS
+    shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
+    pair = z_scale and all(sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix)
+    obj = build_objective(model, start.layout, nu0, z_scale=z_scale, pair=pair)
+    coding = obj.coding
+    lm_lo, lm_hi = bounded_box(model, start.layout, coding, *model.bounds)
+    D = coding.n_position
+    s_lo = list(box_lo[list(coding.direct)])
+    s_hi = list(box_hi[list(coding.direct)])
+    if pair:  # (log delta, q) of every condition about the two-step value
+        th = start.theta
+        d_c = np.log(np.maximum(th[:, shape_ix[0]], 1e-300))
+        q_c = th[:, shape_ix[2]] / th[:, shape_ix[0]]
+        z0 = coding.bounded_of(nu0, 0.0)[len(s_lo):len(s_lo) + 2]
+        for v, c in zip(z0, (d_c, q_c)):
+            h = 3.0 * np.sqrt(np.mean((c - v) ** 2)) + 0.25 * abs(v) + 1e-6
+            s_lo.append(v - h)
+            s_hi.append(v + h)
+    s_lo = np.clip(np.asarray(s_lo, float), lm_lo[:D], lm_hi[:D])
+    s_hi = np.clip(np.asarray(s_hi, float), lm_lo[:D], lm_hi[:D])
     view = None
     if use_view:
         v = make_view(batch)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          np.asarray(v.batch.current, float))
     lo, hi = float(start.levels.min()), float(start.levels.max())
-    return JointProblem(model=model, layout=start.layout, objective=obj, lower=box_lo[idx],
-                        upper=box_hi[idx], width=2.0 * half, full=start.rows, view=view,
+    return JointProblem(model=model, layout=start.layout, objective=obj, lower=s_lo,
+                        upper=s_hi, lm_lower=lm_lo, lm_upper=lm_hi, full=start.rows, view=view,
                         levels=np.linspace(lo, hi, N_LEVELS))
 
 
@@ -182,6 +205,7 @@ def generalize(
     n_particles: int = 50,
     max_generations: int = 100,
     pso_params: PSOParams | None = None,
+    restarts: int = 1,
     polish: bool = True,
     polish_steps: int = 100,
     tol: float = DEFAULT_TOL,
@@ -206,7 +230,8 @@ def generalize(
     - `weighting`: two-step averaging, `"covariance"` (default; inverse-covariance weighted,
         generalized least squares) or `"equal"` (the paper's plain means).
     - `key`, `seed`: PRNG key of the joint swarm (default `jax.random.key(seed)`).
-    - `n_particles`, `max_generations`, `pso_params`: joint swarm settings.
+    - `n_particles`, `max_generations`, `pso_params`, `restarts`: joint swarm settings
+        (`restarts` independent swarms in one compiled program, the best kept).
     - `polish`, `polish_steps`, `tol`: the joint Levenberg-Marquardt polish, its maximum steps
         per stage and its stop (`mrjax.refine.lm_solve`; the full records to 100 x `tol`
         after the views).
@@ -237,7 +262,7 @@ def generalize(
     out = joint_fit(
         problem, key=jax.random.key(int(seed)) if key is None else key,
         n_particles=n_particles, max_generations=max_generations, pso_params=pso_params,
-        polish=polish, polish_steps=polish_steps, tol=tol, uncertainty=uncertainty,
+        restarts=restarts, polish=polish, polish_steps=polish_steps, tol=tol, uncertainty=uncertainty,
         start=(problem.coding.nu0, 0.0), info=info, timings=timings)
     if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)
         out = JointOutcome(coef=start.coef, eta=None, rms=start.rms)

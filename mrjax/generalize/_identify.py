@@ -23,8 +23,17 @@ from ..objective import fit_mask
 from ..pso import PSOParams
 from ..refine import DEFAULT_TOL
 from ._generalize import _make, law_uncertainty_of
-from ._joint import N_LEVELS, JointProblem, Layout, build_objective, joint_fit, make_rows
-from ._joint import packed_rows
+from ._joint import (
+    LOG_FLOOR,
+    N_LEVELS,
+    JointProblem,
+    Layout,
+    bounded_box,
+    build_objective,
+    joint_fit,
+    make_rows,
+    packed_rows,
+)
 from ._laws import Z_SCALE_MODELS, group_currents, nodes
 from ._model import GeneralizedModel, batch_command
 from ._two_step import law_spec
@@ -33,19 +42,6 @@ from ._two_step import law_spec
 #: constants from 0.1 ms to 1 s (Spencer et al. 1997: 190 1/s; an RD-1005-3 responds in
 #: < 25 ms).
 LAG_BOUNDS: tuple[float, float] = (1.0, 1e4)
-#: Range [1/m] of delta, the inverse yield displacement of a Bouc-Wen-type model on the
-#: |z|max = 1 scale, searched by `identify` when delta, beta and gamma are constant and not
-#: bounded by the user: yield within 10 um to 1 m of travel (Spencer's 1997 set: 21 um).
-DELTA_RANGE: tuple[float, float] = (1.0, 1e5)
-#: Range of q = gamma / delta searched with it (beta = (1 - q) delta): q = 0.5 is beta = gamma
-#: (Spencer's), q = 10 is beta = -0.9 gamma (the UTFSM fits).
-Q_RANGE: tuple[float, float] = (0.0, 20.0)
-
-#: A non-negative parameter whose box spans two decades or more is searched by the swarm as a
-#: logarithm, from max(lower, LOG_FLOOR x upper) to its upper bound (a damping of 0 to 1e5
-#: N s/m is searched from 10 N s/m: the swarm then spends as many particles on 100 as on 1e4).
-LOG_FLOOR = 1e-4
-
 Lag = Literal["fit"] | float | None
 
 
@@ -201,41 +197,18 @@ def identify(
     shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
     pair = z_scale and all(layout.sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix) \
         and not (user & {"delta", "beta", "gamma"})
-    # the box of every node value: the parameter's bounds (its log for "exp" laws)
-    box_lo, box_hi = np.zeros(layout.n), np.zeros(layout.n)
-    logs = []
-    for p, n in enumerate(names):
-        b = layout.block(p)
-        a, c = lo_b[p], hi_b[p]
-        if kinds[p] == "poly" and a >= 0 and c > 0 and c / max(a, LOG_FLOOR * c) >= 100:
-            a = max(a, LOG_FLOOR * c)  # a wide non-negative range: searched in log space
-            logs.append(n)
-        if kinds[p] == "exp":
-            if not a > 0:
-                raise InputError(f"law 'exp' of {n!r} needs a positive lower bound, got {a:g}")
-            a, c = math.log(a), math.log(c)
-        box_lo[b], box_hi[b] = a, c
-    logs = tuple(logs)
-    nu0 = 0.5 * (box_lo + box_hi)
-    for n in logs:
-        b = layout.block(names.index(n))
-        nu0[b] = np.sqrt(box_lo[b] * box_hi[b])
+    logs = tuple(n for p, n in enumerate(names)
+                 if kinds[p] == "poly" and lo_b[p] >= 0 and hi_b[p] > 0
+                 and hi_b[p] / max(lo_b[p], LOG_FLOOR * hi_b[p]) >= 100)
+    # where nothing else sets a node value (the linear laws' swarm placeholders): mid-box
+    nu0 = np.concatenate([np.full(layout.sizes[p], 0.5 * (lo_b[p] + hi_b[p]))
+                          for p in range(len(names))])
     obj = build_objective(model, layout, nu0, eta0=eta0, lag=mode, log_params=logs,
                           z_scale=z_scale, pair=pair)
     coding = obj.coding
-    s_lo = [math.log(box_lo[k]) if lg else box_lo[k]
-            for k, lg in zip(coding.direct, coding.direct_log)]
-    s_hi = [math.log(box_hi[k]) if lg else box_hi[k]
-            for k, lg in zip(coding.direct, coding.direct_log)]
-    width = box_hi - box_lo
-    if pair:
-        s_lo += [math.log(DELTA_RANGE[0]), Q_RANGE[0]]
-        s_hi += [math.log(DELTA_RANGE[1]), Q_RANGE[1]]
-        for p in shape_ix:
-            width[layout.block(p)] = DELTA_RANGE[1]
-    if mode == "fit":
-        s_lo.append(math.log(lo_lag))
-        s_hi.append(math.log(hi_lag))
+    lm_lo, lm_hi = bounded_box(model, layout, coding, lo_b, hi_b, (lo_lag, hi_lag),
+                               free_shape=not (user & {"delta", "beta", "gamma"}))
+    D = coding.n_position
     if z_scale:
         info["z_scale"] = (f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "
                            f"delta(u0) = beta(u0) + gamma(u0)")
@@ -247,9 +220,9 @@ def identify(
         v = make_view(batch, transient)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          batch_command(v.batch, unit))
-    problem = JointProblem(model=model, layout=layout, objective=obj, lower=np.asarray(s_lo),
-                           upper=np.asarray(s_hi), width=width, full=full, view=view,
-                           levels=np.linspace(lo, hi, N_LEVELS))
+    problem = JointProblem(model=model, layout=layout, objective=obj, lower=lm_lo[:D],
+                           upper=lm_hi[:D], lm_lower=lm_lo, lm_upper=lm_hi, full=full,
+                           view=view, levels=np.linspace(lo, hi, N_LEVELS))
     timings = {"prepare": time.perf_counter() - t0}
     out = joint_fit(problem, key=jax.random.key(int(seed)) if key is None else key,
                     n_particles=n_particles, max_generations=max_generations,

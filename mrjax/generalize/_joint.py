@@ -64,8 +64,8 @@ from ..data import Batch
 from ..models import AbstractModel, resolve_model
 from ..objective import gram_terms, rms_from_gram, solve_normal
 from ..pso import AbstractObjective, PSOParams, default_params, swarm
-from ..refine import DEFAULT_TOL, jacobian_uncertainty, lm_solve, status_name
-from ._laws import PACK_ROW, LawSet, horner, lag_current, vander
+from ..refine import BOUND_NUDGE, DEFAULT_TOL, jacobian_uncertainty, lm_solve, status_name
+from ._laws import PACK_ROW, Z_SCALE_MODELS, LawSet, horner, lag_current, vander
 
 #: After the polish on the views, the polish of the full records stops at this multiple of
 #: `tol` (as `mrjax.fit` does for dynamic models).
@@ -77,6 +77,18 @@ MAX_GROUPS = 3
 #: A grouping is good enough once the padded samples are at most this multiple of the real
 #: ones (fewer groups compile faster).
 PAD_SLACK = 1.25
+
+
+#: Range [1/m] of delta, the inverse yield displacement of a Bouc-Wen-type model on the
+#: |z|max = 1 scale, when delta, beta and gamma are constant laws not bounded by the user:
+#: yield within 10 um to 1 m of travel (Spencer's 1997 set: 21 um).
+DELTA_RANGE: tuple[float, float] = (1.0, 1e5)
+#: Range of q = gamma / delta with it (beta = (1 - q) delta): q = 0.5 is beta = gamma
+#: (Spencer's), q = 10 is beta = -0.9 gamma (the UTFSM fits).
+Q_RANGE: tuple[float, float] = (0.0, 20.0)
+#: A non-negative parameter whose box spans two decades or more is searched as a logarithm
+#: (where the caller asks for it), from max(lower, LOG_FLOOR x upper) to its upper bound.
+LOG_FLOOR = 1e-4
 
 
 # ------------------------------------------------------------------------------ layout
@@ -265,6 +277,7 @@ class Coding(eqx.Module):
     derived: tuple = eqx.field(static=True)
     free: tuple[int, ...] = eqx.field(static=True)
     lag: str = eqx.field(static=True)
+    ls: tuple[int, ...] = eqx.field(static=True, default=())
 
     @property
     def use_lag(self) -> bool:
@@ -320,6 +333,29 @@ class Coding(eqx.Module):
             k += 2
         eta = jnp.exp(position[k]) if self.lag == "fit" else self.eta0
         return self.complete(nu), eta
+
+    def from_bounded(self, z):
+        """`(nu, eta)` of the polish's variables `z`: a swarm position followed by the node
+        values of the laws the swarm solves by least squares (see :meth:`bounded_of`)."""
+        D = self.n_position
+        nu, eta = self.from_position(z[:D])
+        if self.ls:
+            nu = nu.at[jnp.asarray(self.ls, int)].set(z[D:])
+        return self.complete(nu), eta
+
+    def bounded_of(self, nu, eta) -> np.ndarray:
+        """The polish's variables of `(nu, eta)` (host): the swarm's coordinates (node values,
+        their logarithms, `(log delta, q)`, `log eta`) and the least-squares node values."""
+        nu = np.asarray(nu, float)
+        z = [np.log(nu[k]) if lg else nu[k] for k, lg in zip(self.direct, self.direct_log)]
+        if self.pair:
+            b, g = nu[self.pair[0]], nu[self.pair[1]]
+            d = b + g
+            z += [math.log(d) if d > 0 else -np.inf, g / d if d != 0 else 0.0]
+        if self.lag == "fit":
+            z.append(math.log(float(eta)))
+        z += [nu[k] for k in self.ls]
+        return np.asarray(z, float)
 
     def from_free(self, phi):
         """`(nu, eta)` of the polish's variables: the free node values, then log eta."""
@@ -433,20 +469,29 @@ def total_rms_of(model, coding, nu, eta, data):
 
 
 @eqx.filter_jit
-def polish_unknowns(model, coding, data, phi0, scale, max_steps, tol):
-    """Levenberg-Marquardt on the polish's variables `phi0 + scale * y` (see
-    :meth:`Coding.from_free`), stacked residuals of every record. Returns `(phi, total RMS
-    [N], steps, status code)`."""
+def polish_unknowns(model, coding, data, z0, lower, upper, max_steps, tol):
+    """Bounded Levenberg-Marquardt on the polish's variables (:meth:`Coding.from_bounded`),
+    stacked residuals of every record: the variables run in the MINUIT/lmfit map
+    $z = l + (h - l)(\\sin w + 1)/2$ of their box `[lower, upper]`, as the per-condition
+    polish (`mrjax.refine.polish`); a start on a bound is moved inside by `BOUND_NUDGE`.
+    Dynamic models materialise the Jacobian by forward mode (`lm_solve(jacobian="forward")`).
+    Returns `(z, total RMS [N], steps, status code)`."""
+    half = 0.5 * (upper - lower)
+    z0 = jnp.clip(z0, lower + BOUND_NUDGE * (upper - lower), upper - BOUND_NUDGE * (upper - lower))
+    w0 = jnp.arcsin(jnp.clip((z0 - lower) / jnp.where(half > 0, half, 1.0) - 1.0, -1.0, 1.0))
 
-    def fn(y, args):
-        nu, eta = coding.from_free(phi0 + scale * y)
+    def to_z(w):
+        return lower + half * (jnp.sin(w) + 1.0)
+
+    def fn(w, args):
+        nu, eta = coding.from_bounded(to_z(w))
         return joint_residuals(model, coding, nu, eta, args)
 
-    sol = lm_solve(fn, jnp.zeros_like(phi0), data, max_steps=max_steps, tol=tol,
+    sol = lm_solve(fn, w0, data, max_steps=max_steps, tol=tol,
                    jacobian="forward" if model.dynamic else "linearize")
-    phi = phi0 + scale * sol.value
-    nu, eta = coding.from_free(phi)
-    return phi, total_rms_of(model, coding, nu, eta, data), sol.steps, sol.status
+    z = to_z(sol.value)
+    nu, eta = coding.from_bounded(z)
+    return z, total_rms_of(model, coding, nu, eta, data), sol.steps, sol.status
 
 
 @eqx.filter_jit
@@ -538,10 +583,47 @@ def build_objective(
     free = tuple(int(k) for k in range(layout.n) if not derived or k != derived[0])
     coding = Coding(jnp.asarray(nu0, float), jnp.asarray(layout.Vinv), jnp.asarray(eta0, float),
                     kinds, layout.sizes, tuple(direct), tuple(direct_log), pair_idx, derived,
-                    free, lag)
+                    free, lag, ls_idx)
     return JointObjective(model, coding, jnp.asarray(V_ls), ls_idx,
                           tuple((e[0], e[1]) for e in ls),
                           sum(e[0] < n_fixed for e in ls), exp_lin)
+
+
+def bounded_box(model: AbstractModel, layout: Layout, coding: Coding, lower: np.ndarray,
+                upper: np.ndarray, lag_bounds: tuple[float, float] | None = None,
+                free_shape: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The box of the polish's variables (:meth:`Coding.bounded_of`): every node value of a
+    law within its parameter's bounds `lower`, `upper` (P,) (their logarithms for log-searched
+    nodes and `"exp"` laws), the Bouc-Wen shape as `(log delta, q)` in `DELTA_RANGE` x
+    `Q_RANGE` (or, with delta, beta, gamma not constant, beta and gamma node values in the box
+    those ranges allow, unless `free_shape` is False), `log eta` in `lag_bounds` [1/s]."""
+    names = model.param_names
+    lo_n, hi_n = np.zeros(layout.n), np.zeros(layout.n)
+    for p, n in enumerate(names):
+        b = layout.block(p)
+        a, c = float(lower[p]), float(upper[p])
+        if free_shape and model.name in Z_SCALE_MODELS and n in ("delta", "beta", "gamma"):
+            d_hi, q_hi = DELTA_RANGE[1], Q_RANGE[1]
+            a, c = {"delta": DELTA_RANGE, "beta": ((1.0 - q_hi) * d_hi, d_hi),
+                    "gamma": (0.0, q_hi * d_hi)}[n]
+        if layout.kinds[p] == "exp":
+            a, c = math.log(max(a, 1e-300)), math.log(c)
+        lo_n[b], hi_n[b] = a, c
+    lo, hi = [], []
+    for k, lg in zip(coding.direct, coding.direct_log):
+        a, c = lo_n[k], hi_n[k]
+        lo.append(math.log(max(a, LOG_FLOOR * c)) if lg else a)
+        hi.append(math.log(c) if lg else c)
+    if coding.pair:
+        lo += [math.log(DELTA_RANGE[0]), Q_RANGE[0]]
+        hi += [math.log(DELTA_RANGE[1]), Q_RANGE[1]]
+    if coding.lag == "fit":
+        a, c = lag_bounds
+        lo.append(math.log(a))
+        hi.append(math.log(c))
+    lo += [lo_n[k] for k in coding.ls]
+    hi += [hi_n[k] for k in coding.ls]
+    return np.asarray(lo, float), np.asarray(hi, float)
 
 
 # ------------------------------------------------------------------------------ the problem
@@ -550,10 +632,10 @@ class JointProblem:
     """Everything :func:`joint_fit` needs, built by `generalize` or `identify`.
 
     **Fields:** `model`; `layout`; `objective` the swarm's :class:`JointObjective` (its
-    `coding` also serves the polish); `lower`, `upper` (D,) the swarm's box; `width` (V,)
-    a scale of each node value (e.g. its box width) for the polish's variables; `full` the
-    records; `view` their swarm views or None; `levels` commands spanning the data (sub-step
-    policy).
+    `coding` also serves the polish); `lower`, `upper` (D,) the swarm's box; `lm_lower`,
+    `lm_upper` (D + K,) the polish's box (:meth:`Coding.bounded_of`: the swarm's coordinates,
+    then the least-squares node values); `full` the records; `view` their swarm views or
+    None; `levels` commands spanning the data (sub-step policy).
     """
 
     model: AbstractModel
@@ -561,7 +643,8 @@ class JointProblem:
     objective: JointObjective
     lower: np.ndarray
     upper: np.ndarray
-    width: np.ndarray
+    lm_lower: np.ndarray
+    lm_upper: np.ndarray
     full: tuple[Rows, ...]
     view: tuple[Rows, ...] | None
     levels: np.ndarray
@@ -674,13 +757,9 @@ def joint_fit(
     timings["score"] = time.perf_counter() - t1
     info.update(polish_steps=[], polish_status=[])
     if polish and coding.n_free:
-        phi = coding.free_of(nu_best, eta_best)
-        scale = np.maximum(np.abs(np.asarray(nu_best)[list(coding.free)]),
-                           0.01 * problem.width[list(coding.free)])
-        scale = np.maximum(scale, 1e-12)
-        if coding.lag == "fit":
-            scale = np.append(scale, 1.0)
-        nu_s, eta_s = (np.asarray(a) for a in coding.from_free(jnp.asarray(phi)))
+        lo_b, hi_b = np.asarray(problem.lm_lower, float), np.asarray(problem.lm_upper, float)
+        z = np.clip(coding.bounded_of(nu_best, eta_best), lo_b, hi_b)
+        nu_s, eta_s = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
         stages = []
         if problem.view is not None:
             m_view = _resolved(problem, nu_s, float(eta_s), problem.view)
@@ -695,19 +774,19 @@ def joint_fit(
         for stage, data, stage_tol, m in stages:
             t2 = time.perf_counter()
             if m is None:
-                nu_s, eta_s = coding.from_free(jnp.asarray(phi))
+                nu_s, eta_s = coding.from_bounded(jnp.asarray(z))
                 m = _resolved(problem, np.asarray(nu_s), float(eta_s), data)
-            phi_new, rms_new, steps, code = polish_unknowns(
-                m, coding, data, jnp.asarray(phi), jnp.asarray(scale), int(polish_steps),
-                jnp.asarray(stage_tol, float))
-            phi_new = np.asarray(phi_new)
+            z_new, rms_new, steps, code = polish_unknowns(
+                m, coding, data, jnp.asarray(z), jnp.asarray(lo_b), jnp.asarray(hi_b),
+                int(polish_steps), jnp.asarray(stage_tol, float))
+            z_new = np.asarray(z_new)
             info["polish_steps"].append(int(steps))
             info["polish_status"].append(status_name(code))
             info[f"polish_{stage}_substeps"] = (m.substeps, m.scheme)
-            if np.all(np.isfinite(phi_new)) and np.isfinite(float(rms_new)):
-                phi = phi_new
+            if np.all(np.isfinite(z_new)) and np.isfinite(float(rms_new)):
+                z = z_new
             timings[f"polish_{stage}"] = time.perf_counter() - t2
-        nu_p, eta_p = (np.asarray(a) for a in coding.from_free(jnp.asarray(phi)))
+        nu_p, eta_p = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
         m = _resolved(problem, nu_p, float(eta_p), full)
         rms_p = float(total_rms_of(m, coding, jnp.asarray(nu_p), float(eta_p), full))
         info["polish_rms_N"] = rms_p
