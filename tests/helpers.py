@@ -298,3 +298,20 @@ def check_pngs(d: Path, names) -> None:
     for n in names:
         data = (d / n).read_bytes()
         assert data[:8] == PNG_MAGIC and len(data) > 2000, n
+
+
+#: Short records for the per-model known answers: two sine tests at 1 kHz.
+SHORT_MOTIONS: tuple[tuple[float, float, float], ...] = ((2.5, 0.015, 1.25), (1.5, 0.008, 1.25))
+
+
+def short_batch(name: str, *, noise_frac: float = 0.01, seed: int = 0):
+    """`(batch, truth)`: the two `SHORT_MOTIONS` tests simulated by model `name` at
+    `TRUE_PARAMS[name]`, with Gaussian force noise of `noise_frac` x max|F|; truth (2, P)."""
+    theta = TRUE_PARAMS[name]
+    conds = []
+    for k, (f, a, cycles) in enumerate(SHORT_MOTIONS):
+        clean = mrjax.data.simulate(name, theta, frequency=f, amplitude=a, cycles=cycles)
+        sigma = noise_frac * float(np.max(np.abs(clean.force)))
+        conds.append(mrjax.data.simulate(name, theta, frequency=f, amplitude=a, cycles=cycles,
+                                         noise=sigma, seed=seed + k))
+    return mrjax.data.make_batch(conds), np.broadcast_to(theta, (2, len(theta))).copy()

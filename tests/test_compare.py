@@ -205,15 +205,20 @@ def test_known_answer_generating_model_ranks_first_by_bic(known, g):
 
 @pytest.mark.parametrize("small, big", NESTED)
 def test_known_answer_nested_pairs_differ_only_by_the_penalty(known, small, big):
-    """On data of the nested model the nesting one fits as well (RMS within 1 %), so BIC's
-    preference for the nested model is the parameter penalty alone."""
+    """On data of the nested model the nesting one fits as well (RMS within 2 %: these are
+    swarm-only fits, whose one-step L-stable integration is accurate to ~1e-3 of max|F|, a
+    fifth of this noise), so BIC's preference for the nested model is the parameter penalty
+    alone."""
     batch, res = known
     idx = _tests_of(batch, small)
     i, j = res.models.index(small), res.models.index(big)
-    np.testing.assert_allclose(res.rms[j, idx], res.rms[i, idx], rtol=0.01)
+    np.testing.assert_allclose(res.rms[j, idx], res.rms[i, idx], rtol=0.02)
     n = res.n_samples[idx]
     penalty = (res.k[j] - res.k[i]) * np.log(n)
-    assert np.all(res.bic[j, idx] - res.bic[i, idx] <= penalty + 1.0)
+    # BIC = n log(RSS/n) + k log n: an RMS within 2 % moves it by at most 2 n log(1.02)
+    fit_gap = 2 * n * np.log(1.02)
+    assert np.all(res.bic[j, idx] - res.bic[i, idx] <= penalty + fit_gap)
+    assert np.all(res.bic[j, idx] - res.bic[i, idx] >= penalty - fit_gap)
 
 
 def test_known_answer_distinguishable_pairs_by_a_wide_margin(known):

@@ -749,4 +749,6 @@ def test_one_broken_condition_leaves_the_other_35_unchanged(broken_grid):
           f"max nrmse {np.max(r35.nrmse):.4f}, statuses {sorted(set(r35.polish_status))}")
     assert np.isfinite(r36.rms[bad]) and r36.rms[bad] > 100 * np.max(r35.rms)
     assert r36.nrmse[bad] > 3 * np.max(r35.nrmse)
-    assert r36.polish_status[bad] != "successful" and not np.all(r36.identifiable[bad])
+    # the polish may converge (its residual stops changing) on garbage: what flags it is the
+    # error above and the parameters the data cannot pin down
+    assert not np.all(r36.identifiable[bad])

@@ -42,8 +42,11 @@ class FitResult:
     - `generations` (C,), `stopped_by_criterion` (C,): swarm generations and whether the
         statistical stop ended it (False: the cap). -1 / False for `method="lm"`.
     - `history` (C, G+1) [N]: group-best RMS per generation (empty for `"lm"`).
-    - `polish_steps` (C,), `polish_status` (C,) str: Levenberg-Marquardt steps and outcome
-        (`"none"` without polish).
+    - `polish_steps` (C,), `polish_status` (C,) str: Levenberg-Marquardt steps (of the
+        full-record polish) and outcome: `"successful"`, `"refined"` (converged on the
+        swarm's subsampled view, then refined on the full record in its few steps; see
+        `mrjax.fit`'s `swarm_view`), `"max_steps_reached"`, `"kept_start"`, ..., or `"none"`
+        without polish.
     - `stderr` (C, P), `ci95` (C, P, 2), `corr` (C, P, P), `identifiable` (C, P): uncertainty
         from the Jacobian at the optimum (NaN where undefined).
     - `timings`: seconds per stage.

@@ -1,7 +1,7 @@
 """Damper models: pure, jittable, differentiable force functions in SI units.
 
 Use `mrjax.models.get(name)`; see :class:`AbstractModel` for the contract. This package is also
-the home of the one integrator (`rk4_scan`), the one bounds check (`check_bounds`,
+the home of the one integrator (`integrate`), the one bounds check (`check_bounds`,
 `box_corners`) and the one sub-step policy (`resolve_model`, `choose_substeps`).
 """
 
@@ -13,6 +13,8 @@ from ._bounds import check_box as check_box
 from ._hysteretic import BoucWen as BoucWen
 from ._hysteretic import Dahl as Dahl
 from ._hysteretic import ModifiedBoucWen as ModifiedBoucWen
+from ._integrate import SCHEMES as SCHEMES
+from ._integrate import integrate as integrate
 from ._integrate import rk4_scan as rk4_scan
 from ._registry import get as get
 from ._registry import names as names
@@ -23,4 +25,5 @@ from ._substeps import STEP_TARGET as STEP_TARGET
 from ._substeps import SWARM_MAX_SUBSTEPS as SWARM_MAX_SUBSTEPS
 from ._substeps import TRACED_SUBSTEPS as TRACED_SUBSTEPS
 from ._substeps import choose_substeps as choose_substeps
+from ._substeps import doubled_substeps as doubled_substeps
 from ._substeps import resolve_model as resolve_model

@@ -22,8 +22,8 @@ from ._uncertainty import Uncertainty, make_uncertainty, uncertainty_one, undefi
 
 #: A start on a bound is moved this fraction of the box width inside before the solve.
 BOUND_NUDGE = 1e-3
-#: After the solve, a free parameter within this fraction of the box width of a bound is set
-#: onto the bound if that does not raise the RMS.
+#: After the solve, the free parameters within this fraction of the box width of a bound are
+#: set onto it (together) if that does not raise the RMS.
 BOUND_SNAP = 1e-3
 class Polished(eqx.Module):
     """Result of :func:`polish`, per condition.
@@ -116,22 +116,17 @@ def _to_theta(u, lo, hi):
 
 
 def _snap_to_bounds(score, theta, rms, idx, lo, hi):
-    """Move each free parameter within `BOUND_SNAP` of the box width of a bound onto it, one
-    at a time, where that does not raise the RMS. The sine map only approaches an active bound
-    slowly (its derivative vanishes there), so LM stops a little short of it."""
-
-    def body(k, carry):
-        th, r = carry
-        j = idx[k]
-        tol = BOUND_SNAP * (hi[j] - lo[j])
-        v = th[j]
-        target = jnp.where(v - lo[j] <= tol, lo[j], jnp.where(hi[j] - v <= tol, hi[j], v))
-        cand = th.at[j].set(target)
-        rc = score(cand)
-        ok = (target != v) & jnp.isfinite(rc) & (rc <= r)
-        return jnp.where(ok, cand, th), jnp.where(ok, rc, r)
-
-    return jax.lax.fori_loop(0, idx.shape[0], body, (theta, rms))
+    """Move every free parameter within `BOUND_SNAP` of the box width of a bound onto it, all at
+    once, if that does not raise the RMS (one more evaluation). The sine map only approaches an
+    active bound slowly (its derivative vanishes there), so LM stops a little short of it."""
+    j = np.asarray(idx)
+    tol = BOUND_SNAP * (hi[j] - lo[j])
+    v = theta[j]
+    target = jnp.where(v - lo[j] <= tol, lo[j], jnp.where(hi[j] - v <= tol, hi[j], v))
+    cand = theta.at[j].set(target)
+    rc = score(cand)
+    ok = jnp.any(target != v) & jnp.isfinite(rc) & (rc <= rms)
+    return jnp.where(ok, cand, theta), jnp.where(ok, rc, rms)
 
 
 def _polish_one(model, free_idx, max_steps, tol, theta0, lo, hi, x, xdot, dt, force, mask):
@@ -161,7 +156,7 @@ def _polish_one(model, free_idx, max_steps, tol, theta0, lo, hi, x, xdot, dt, fo
         return fitness(model, th, x, xdot, dt, force, mask)
 
     rms0 = score(theta0)
-    th_lm, rms_lm = _snap_to_bounds(score, th_lm, score(th_lm), jnp.asarray(idx), lo, hi)
+    th_lm, rms_lm = _snap_to_bounds(score, th_lm, score(th_lm), idx, lo, hi)
     take = jnp.all(jnp.isfinite(th_lm)) & jnp.isfinite(rms_lm) & (rms_lm <= rms0)
     theta = jnp.where(take, th_lm, theta0)
     rms = jnp.where(take, rms_lm, rms0)
