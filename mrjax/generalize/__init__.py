@@ -83,6 +83,10 @@ from ._generalize import generalize as generalize
 from ._identify import LAG_BOUNDS as LAG_BOUNDS
 from ._identify import command_unit_of as command_unit_of
 from ._identify import identify as identify
+from ._inverse import ClosedLoop as ClosedLoop
+from ._inverse import Inverse as Inverse
+from ._inverse import closed_loop as closed_loop
+from ._inverse import inverse as inverse
 from ._inverse import inverse_current as inverse_current
 from ._joint import DELTA_RANGE as DELTA_RANGE
 from ._joint import LOG_FLOOR as LOG_FLOOR

@@ -132,6 +132,7 @@ def _dynamic_core(model, laws, x, v, dt, fd, lo, hi, eta, use_lag, n_grid, iters
         u_star = target(state1, nxt)
         if use_lag:  # the command that brings the filter's output to u_star at the next sample
             cmd = jnp.clip((u_star - a[k] * u) / (1.0 - a[k]), lo, hi)
+            cmd = jnp.where(k == 0, u, cmd)  # the filter starts at the first command (u_0 = v_0)
             u1 = cmd + (u - cmd) * a[k]
         else:
             cmd, u1 = u, u_star
@@ -261,3 +262,107 @@ def inverse_current(
         i_max = gm.command_range[1]
     return inverse(gm, x, xdot, force_desired, dt=dt, command_range=(i_min, i_max), lag=lag,
                    n_grid=n_grid, iters=iters).command
+
+
+class ClosedLoop(eqx.Module):
+    """Outcome of :func:`closed_loop` (T samples).
+
+    **Fields:** `x` [m], `xdot` [m/s] the structure's response; `force` [N] the damper's force;
+    `desired` [N] the control law's force; `command` the command applied (laws' unit);
+    `effective` the command the laws see (after the lag)."""
+
+    x: Float[Array, " T"]
+    xdot: Float[Array, " T"]
+    force: Float[Array, " T"]
+    desired: Float[Array, " T"]
+    command: Float[Array, " T"]
+    effective: Float[Array, " T"]
+
+
+@eqx.filter_jit
+def _closed_core(model, laws, ag, dt, mass, stiff, damp, gain, mode, lo, hi, eta, use_lag,
+                 n_grid, iters):
+    a = jnp.exp(-eta * dt) if use_lag else jnp.asarray(0.0)
+    dyn = model.dynamic
+    state0 = model.initial_state(0.0, 0.0) if dyn else jnp.zeros((1,))
+
+    def body(carry, agk):
+        x, xd, state, u = carry
+        f = model.force_at(laws(u), state, x, xd)
+        fd = gain * xd
+        # the command: inverse (mode 0), always off (1) or always on (2)
+        def g(uu):
+            return jax.vmap(lambda w: model.force_at(laws(w), state, x, xd))(uu)
+        u_star, _ = _solve(g, fd, lo, hi, n_grid, iters)
+        u_star = jnp.where(mode == 1, lo, jnp.where(mode == 2, hi, u_star))
+        if use_lag:
+            cmd = jnp.clip((u_star - a * u) / (1.0 - a), lo, hi)
+            cmd = jnp.where(mode == 0, cmd, u_star)
+            u1 = cmd + (u - cmd) * a
+        else:
+            cmd, u1 = u_star, u_star
+        acc = (-mass * agk - damp * xd - stiff * x - f) / mass
+        xd1 = xd + dt * acc  # semi-implicit Euler
+        x1 = x + dt * xd1
+        state1 = model.advance(state, laws(u), x, x1, xd, xd1, dt) if dyn else state
+        return (x1, xd1, state1, u1), (x, xd, f, fd, cmd, u)
+
+    _, out = jax.lax.scan(body, (jnp.asarray(0.0), jnp.asarray(0.0), state0, lo), ag)
+    return out
+
+
+def closed_loop(
+    gm: GeneralizedModel,
+    ground_acceleration: Float[ArrayLike, " T"],
+    dt: float,
+    *,
+    mass: float,
+    stiffness: float,
+    damping: float = 0.0,
+    gain: float,
+    control: str = "inverse",
+    command_range: tuple[float, float] | None = None,
+    lag: float | None | _ModelLag = MODEL_LAG,
+    n_grid: int = 32,
+    iters: int = 30,
+) -> ClosedLoop:
+    """A closed-loop simulation of a base-excited one-storey structure with the damper `gm`
+    between the storey and the ground: $m\\ddot x + c\\dot x + kx = -m\\ddot x_g - F$, with $F$
+    the damper's force (its model's state carried, `AbstractModel.advance`) and the command
+    chosen each sample by the inverse model (:func:`inverse`'s search, from the state reached)
+    so that $F$ is closest to the control law's desired force $f_d = $ `gain` $\\dot x$
+    (a viscous "skyhook" law), saturated to the admissible range; with a lag, the command that
+    brings the filter's output there at the next sample.
+
+    **Arguments:** `ground_acceleration` [m/s^2] (T,); `dt` [s]; `mass` [kg], `stiffness`
+    [N/m], `damping` [N s/m] of the structure; `gain` [N s/m]; `control`: `"inverse"`
+    (default), `"off"` (the lowest command) or `"on"` (the highest), the passive references;
+    `command_range` default `gm.command_range`; `lag` default the model's own; `n_grid`,
+    `iters` the search's grid and refinement steps.
+
+    **Returns:** a :class:`ClosedLoop`. Raises :class:`mrjax.InputError` for bad arguments.
+    """
+    if not isinstance(gm, GeneralizedModel):
+        raise InputError(f"closed_loop needs a GeneralizedModel, got {type(gm).__name__}")
+    modes = {"inverse": 0, "off": 1, "on": 2}
+    if control not in modes:
+        raise InputError(f"control must be one of {sorted(modes)}, got {control!r}")
+    for name, val in (("dt", dt), ("mass", mass), ("stiffness", stiffness)):
+        if not (math.isfinite(float(val)) and float(val) > 0):
+            raise InputError(f"{name} must be positive, got {val!r}")
+    ag = jnp.asarray(ground_acceleration, float)
+    if ag.ndim != 1 or ag.shape[0] < 2:
+        raise InputError(f"ground_acceleration must be (T,), T >= 2, got {ag.shape}")
+    lo, hi = gm.command_range if command_range is None else command_range
+    if not float(lo) < float(hi):
+        raise InputError(f"command_range must have low < high, got ({lo!r}, {hi!r})")
+    eta = gm.lag if lag is MODEL_LAG else check_lag(lag)
+    # sub-steps for velocities up to a generous bound of the response
+    vmax = np.full(2, 10.0 * float(np.max(np.abs(ag))) * math.sqrt(mass / stiffness) + 0.1)
+    model = gm._resolved(np.linspace(float(lo), float(hi), 9), vmax, np.full(2, float(dt)))
+    x, xd, f, fd, cmd, u = _closed_core(
+        model, gm._lawset, ag, jnp.asarray(float(dt)), float(mass), float(stiffness),
+        float(damping), float(gain), modes[control], jnp.asarray(float(lo)),
+        jnp.asarray(float(hi)), jnp.asarray(0.0 if eta is None else eta), eta is not None,
+        int(n_grid), int(iters))
+    return ClosedLoop(x=x, xdot=xd, force=f, desired=fd, command=cmd, effective=u)

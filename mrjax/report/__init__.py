@@ -23,3 +23,6 @@ from ._figures import save_png_bytes as save_png_bytes
 from ._tables import format_table as format_table
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records
+from ._command import command_figures as command_figures
+from ._command import plot_command_record as plot_command_record
+from ._command import plot_laws_vs_command as plot_laws_vs_command
