@@ -170,8 +170,9 @@ def test_cli_fit_and_predict_command(command_files, tmp_path, lag):
         return
     pred = tmp_path / "pred"
     code, stdout, err = run(["predict", "--fit", out, command_files / "rand2.csv",
-                             "--columns", COLUMNS, "--out", pred, "--no-plots"])
+                             "--columns", COLUMNS, "--out", pred])
     assert code == 0, err
+    assert any(p.suffix == ".png" for p in pred.iterdir())
     rep = json.loads((pred / "predict.json").read_text())
     nr = rep["conditions"][0]["nrmse"]
     # the command replayed through the lag: close to the noise floor; without it, far worse

@@ -81,6 +81,7 @@ the force is out of reach.
 
 from ._generalize import generalize as generalize
 from ._identify import LAG_BOUNDS as LAG_BOUNDS
+from ._identify import MIN_GENERATIONS_DYNAMIC as MIN_GENERATIONS_DYNAMIC
 from ._identify import command_unit_of as command_unit_of
 from ._identify import identify as identify
 from ._inverse import ClosedLoop as ClosedLoop

@@ -42,6 +42,11 @@ from ._two_step import law_spec
 #: constants from 0.1 ms to 1 s (Spencer et al. 1997: 190 1/s; an RD-1005-3 responds in
 #: < 25 ms).
 LAG_BOUNDS: tuple[float, float] = (1.0, 1e4)
+#: Without `pso_params`, the swarm of a dynamic model runs at least this many generations
+#: (capped by `max_generations`) before the statistical stop may end it (window 25): on a
+#: random-command record the improvements come in bursts, and an early stop leaves the polish
+#: far from the optimum.
+MIN_GENERATIONS_DYNAMIC = 100
 Lag = Literal["fit"] | float | None
 
 
@@ -148,7 +153,9 @@ def identify(
     - `key`, `seed`: the swarm's PRNG key (default `jax.random.key(seed)`); same key, same
         result.
     - `n_particles`, `max_generations`, `pso_params`, `restarts`: swarm settings
-        (`restarts` independent swarms in one compiled program, the best polished).
+        (`restarts` independent swarms in one compiled program, the best polished; default
+        `pso_params`: window 25 and, for dynamic models, at least
+        `MIN_GENERATIONS_DYNAMIC` generations).
     - `polish`, `polish_steps`, `tol`: the Levenberg-Marquardt stages (`mrjax.refine.lm_solve`;
         views to `tol`, full records to 100 x `tol`).
     - `uncertainty`: std-errors and identifiability of every coefficient and of $\\eta$.
@@ -223,6 +230,9 @@ def identify(
     problem = JointProblem(model=model, layout=layout, objective=obj, lower=lm_lo[:D],
                            upper=lm_hi[:D], lm_lower=lm_lo, lm_upper=lm_hi, full=full,
                            view=view, levels=np.linspace(lo, hi, N_LEVELS))
+    if pso_params is None:
+        pso_params = PSOParams(window=25, min_generations=min(
+            MIN_GENERATIONS_DYNAMIC if model.dynamic else 0, int(max_generations)))
     timings = {"prepare": time.perf_counter() - t0}
     out = joint_fit(problem, key=jax.random.key(int(seed)) if key is None else key,
                     n_particles=n_particles, max_generations=max_generations,
