@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--rate", type=float, default=3000.0)
     ap.add_argument("--no-mixed", action="store_true")
+    ap.add_argument("--reuse", action="store_true",
+                    help="keep the identifications stored in command.json; rerun the inverse, "
+                    "the closed loop and the figures")
     ap.add_argument("--render-only", action="store_true",
                     help="rewrite command.md from command.json")
     a = ap.parse_args(argv)
@@ -66,15 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     t_import = time.perf_counter()
     import mrjax  # noqa: F401  (the import time is reported)
     from mrjax.data import make_batch
-    from mrjax.generalize import (
-        closed_loop,
-        command_record,
-        identify,
-        inverse,
-        random_motion,
-        sine_record,
-        spencer_1997,
-    )
+    from mrjax.generalize import GeneralizedModel, command_record, spencer_1997
     from mrjax.pso import PSOParams
 
     from ._common import environment, loadavg, log
@@ -90,7 +85,38 @@ def main(argv: list[str] | None = None) -> int:
     pso = PSOParams(window=25, min_generations=100)
     out: dict = {"environment": environment(), "import_s": t_import, "duration_s": dur,
                  "sample_rate_Hz": fs, "n_samples": int(rec.t.size)}
+    if a.reuse:
+        out = json.loads((HERE / "command.json").read_text())
+        gm = GeneralizedModel.from_dict(out["known_answer"]["generalized"])
+        out["inverse_rerun"] = time.strftime("%Y-%m-%d %H:%M:%S %Z")
+    else:
+        gm = _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso)
+    _inverse_and_loop(gm, truth, out, dur, fs)
+    try:
+        from mrjax.report import plot_command_record, plot_laws_vs_command
 
+        figs = {"command_force.png": plot_command_record(gm, val, reference=truth),
+                "command_laws.png": plot_laws_vs_command(gm, reference=truth)}
+        for name, fig in figs.items():
+            fig.savefig(HERE / name, dpi=90)
+        log(f"figures: {sorted(figs)}")
+    except ImportError:
+        pass
+    out["loadavg_end"] = loadavg()
+    (HERE / "command.json").write_text(json.dumps(out, indent=1, default=float))
+    (HERE / "command.md").write_text(render(out))
+    print(render(out))
+    return 0
+
+
+def _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso):
+    """The known answer and the mixed campaign; fills `out`, returns the identified laws."""
+    from mrjax.data import make_batch
+    from mrjax.generalize import identify, sine_record
+
+    from ._common import log
+
+    dur, fs = a.duration, a.rate
     log(f"known answer: identify from one {dur:g} s, {fs:g} Hz record...")
     t0 = time.perf_counter()
     gm = identify(rec, "modified_bouc_wen", lag="fit", seed=0, pso_params=pso)
@@ -125,6 +151,14 @@ def main(argv: list[str] | None = None) -> int:
                         "val_gap_points": 100 * (nr_mix - nr_true),
                         "generalized": gm_mix.to_dict()}
         log(f"  {wall_mix:.1f} s, validation NRMSE {100 * nr_mix:.3f} %")
+    return gm
+
+
+def _inverse_and_loop(gm, truth, out, dur, fs) -> None:
+    """The inverse round trip and the closed loop of the identified laws `gm`."""
+    from mrjax.generalize import closed_loop, command_record, inverse, random_motion
+
+    from ._common import log
 
     log("inverse round trip...")
     r3 = command_record(truth, duration=min(dur, 5.0), sample_rate=fs, noise=0.0, seed=3)
@@ -167,23 +201,6 @@ def main(argv: list[str] | None = None) -> int:
     log(f"  closed loop: rms x off {cl['off']['rms_x_mm']:.2f} mm, on "
         f"{cl['on']['rms_x_mm']:.2f} mm, inverse {cl['inverse']['rms_x_mm']:.2f} mm")
 
-    out["loadavg_end"] = loadavg()
-    (HERE / "command.json").write_text(json.dumps(out, indent=1, default=float))
-    (HERE / "command.md").write_text(render(out))
-    print(render(out))
-    try:
-        from mrjax.report import plot_command_record, plot_laws_vs_command
-
-        figs = {"command_force.png": plot_command_record(gm, val, reference=truth),
-                "command_laws.png": plot_laws_vs_command(gm, reference=truth)}
-        for name, fig in figs.items():
-            fig.savefig(HERE / name, dpi=90)
-        log(f"figures: {sorted(figs)}")
-    except ImportError:
-        pass
-
-    return 0
-
 
 def render(out: dict) -> str:
     """The Markdown report of a result dict."""
@@ -194,7 +211,7 @@ def render(out: dict) -> str:
         "",
         f"Machine: {env.get('cpu', env.get('cpu_model', '?'))}, "
         f"{env.get('cpu_count', env.get('n_cpu', '?'))} CPU cores (shared with other jobs; load "
-        f"{out.get('loadavg_end', 'load average not recorded')} at the end). Cold: JAX compilation included.",
+        f"{out.get('loadavg_end', 'load average not recorded')} at the end of the last run). Cold: JAX compilation included.",
         "",
         f"Record: {out['duration_s']:g} s at {out['sample_rate_Hz']:g} Hz "
         f"({out['n_samples']} samples), noise 2 % of max|F|.",
@@ -228,6 +245,9 @@ def render(out: dict) -> str:
                   f"{mx['nrmse_val_true_pct']:.3f} % ({mx['val_gap_points']:+.3f} points), "
                   f"eta {mx['eta']:.4g} 1/s.", ""]
     iv = out["inverse"]
+    if "inverse_rerun" in out:
+        lines += [f"(Inverse, closed loop and figures rerun on the stored laws, `--reuse`, "
+                  f"{out['inverse_rerun']}.)", ""]
     lines += [f"**Inverse** ({iv['n_samples']} samples, {iv['wall_s']:.1f} s): round trip "
               f"desired force -> command -> model force, RMS error "
               f"{iv['rms_err_pct_of_max']:.2e} % of max|F| on the {100 * iv['reachable_fraction']:.1f} % "
