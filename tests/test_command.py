@@ -141,15 +141,18 @@ def command_files(tmp_path_factory):
 @pytest.mark.parametrize("lag", ["190", "fit"])
 def test_cli_fit_and_predict_command(command_files, tmp_path, lag):
     out = tmp_path / "fit"
+    degrees = ["--degrees", "alpha=1,beta=0"] if lag == "fit" else []
     code, stdout, err = run(["fit", command_files / "rand1.csv", "--model", "kwok",
                              "--generalize", "joint", "--lag", lag, "--columns", COLUMNS,
-                             "--out", out, "--max-generations", "60"])
+                             "--out", out, "--max-generations", "60", *degrees])
     assert code == 0, err
     doc = json.loads((out / "fit.json").read_text())
     g = doc["generalized"]
     assert doc["method"] == "identify" and doc["command_unit"] == "V"
     assert g["command_unit"] == "V" and g["current_range_A"] is None
     assert g["laws"]["c"]["degree"] >= 1 and g["laws"]["alpha"]["degree"] >= 1
+    if degrees:
+        assert g["laws"]["alpha"]["degree"] == 1 and g["laws"]["beta"]["degree"] == 0
     if lag == "190":
         assert doc["lag_1_s"] == 190.0 and not g["lag_fitted"]
     else:
@@ -187,6 +190,7 @@ def test_cli_fit_and_predict_command(command_files, tmp_path, lag):
 @pytest.mark.parametrize("argv, match", [
     (["--lag", "-3"], "--lag"),
     (["--lag", "fast"], "--lag"),
+    (["--generalize", "joint", "--degrees", "zz=1"], "zz"),
     (["--generalize", "two-step"], "joint"),
     ([], "joint"),
 ])

@@ -86,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
     if args.generalize:
         say(f"fitting current-dependent laws ({args.generalize})...")
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
-        gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask)
+        gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
+                        degrees=args.degrees)
     files = {"fit.json": result.to_json(generalized=gm).encode(),
              "fit.csv": result.to_csv().encode()}
     if not args.no_plots:
@@ -129,6 +130,22 @@ def parse_lag(text: str) -> str | float | None:
     return v
 
 
+def parse_degrees(text: str) -> dict[str, int]:
+    """`--degrees`: `NAME=DEG,...`, the polynomial degree of each named parameter's law."""
+    out: dict[str, int] = {}
+    for item in text.split(","):
+        name, sep, deg = item.partition("=")
+        try:
+            d = int(deg)
+        except ValueError:
+            d = -1
+        if not sep or not name.strip() or d < 0:
+            raise argparse.ArgumentTypeError(
+                f"expected NAME=DEG,... with DEG a non-negative integer, got {item!r}")
+        out[name.strip()] = d
+    return out
+
+
 def laws_csv(gm: GeneralizedModel) -> str:
     """The laws as CSV: one row per coefficient (parameter, power of the command, value,
     std-error, unit of the parameter, command unit), then the lag rate."""
@@ -160,7 +177,7 @@ def _run_identify(args, model, bounds, batch, out) -> int:
                          "and polish: leave --method and --swarm at their defaults")
     say(f"identifying {model.name} as laws of the command from {C} record"
         f"{'s' if C != 1 else ''} (lag: {args.lag})...")
-    gm = identify(batch, model, lag=args.lag, bounds=bounds, transient=args.transient,
+    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, bounds=bounds, transient=args.transient,
                   seed=args.seed, n_particles=args.particles,
                   max_generations=args.generations or args.max_generations or 200,
                   restarts=args.restarts)
@@ -226,6 +243,10 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="also fit current-dependent laws of the parameters; records with a "
                    "command voltage or a time-varying current need 'joint' (the laws are then "
                    "identified from every record at once)")
+    p.add_argument("--degrees", type=parse_degrees, metavar="NAME=DEG,...",
+                   help="polynomial degree of the named parameters' laws of the current or "
+                   "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
+                   "linear in a command voltage)")
     p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")

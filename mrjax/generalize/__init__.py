@@ -74,9 +74,16 @@ first-order current lag $\\dot u = -\\eta (u - i)$ (Spencer et al. 1997) is disc
 per sample, $u_{k+1} = i_k + (u_k - i_k)\\,e^{-\\eta\\,\\Delta t_k}$, $u_0 = i_0$
 (:func:`lag_current`).
 
-**Inverse model.** :func:`inverse_current` returns, for the tanh model, the current in
-$[i_{min}, i_{max}]$ whose force is closest to a wanted force, saturating at the limits when
-the force is out of reach.
+**Identification from time-varying commands.** :func:`identify` fits the laws (and the lag
+$\eta$, fitted or fixed) from records whose current or command voltage varies per sample,
+constant-command sine tests, or any mix (Spencer et al. 1997; :func:`spencer_1997`,
+:func:`command_record` and :func:`sine_record` give the known answers).
+
+**Inverse model.** :func:`inverse` (and :func:`inverse_current`, its command alone) returns
+the command in the admissible range whose force is closest to a wanted force: pointwise for
+static models, by a scan carrying the state (and the lag) for dynamic ones; it saturates at
+the limits, flagged, when the force is out of reach. :func:`closed_loop` simulates a
+one-storey structure with the damper driven by it under a skyhook law.
 """
 
 from ._generalize import generalize as generalize
