@@ -211,7 +211,8 @@ def render(out: dict) -> str:
         "",
         f"Machine: {env.get('cpu', env.get('cpu_model', '?'))}, "
         f"{env.get('cpu_count', env.get('n_cpu', '?'))} CPU cores (shared with other jobs; load "
-        f"{out.get('loadavg_end', 'load average not recorded')} at the end of the last run). Cold: JAX compilation included.",
+        f"{out.get('loadavg_end', 'load average not recorded')} at the end of the last run). "
+        "Cold: JAX compilation included.",
         "",
         f"Record: {out['duration_s']:g} s at {out['sample_rate_Hz']:g} Hz "
         f"({out['n_samples']} samples), noise 2 % of max|F|.",
