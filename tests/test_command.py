@@ -4,13 +4,14 @@ and its closed loop, the command line (`mrjax fit --generalize joint` on files w
 per-sample command, `--lag`, `mrjax predict` replaying the command) and the figures.
 
 The known answer here is a short record (3 s at 1 kHz instead of 20 s at 3 kHz: the full size
-is `benchmarks/command.py`); the command-line tests use the tanh model's laws (fast) with a
-lag.
+is `benchmarks/command.py`); the mixed campaign (sine tests + a random record) runs with
+MRJAX_SLOW=1; the command-line tests use the tanh model's laws (fast) with a lag.
 """
 
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from mrjax.generalize import (
     identify,
     inverse,
     random_motion,
+    sine_record,
     spencer_1997,
 )
 from mrjax.pso import PSOParams
@@ -58,6 +60,23 @@ def test_spencer_1997_known_answer():
     nr, nr_true = gm.evaluate(vb)["nrmse"][0], truth.evaluate(vb)["nrmse"][0]
     print(f"eta {gm.lag:.2f}; validation NRMSE {100 * nr:.3f} % vs true {100 * nr_true:.3f} %")
     assert abs(nr - nr_true) <= 0.002
+
+
+@pytest.mark.skipif(os.environ.get("MRJAX_SLOW") != "1",
+                    reason="about 2 min on 2 cores; set MRJAX_SLOW=1 (full size: "
+                    "benchmarks/command.py)")
+def test_mixed_campaign_predicts_a_random_record():
+    """Sine tests at 0, 1, 2 V plus one random-command record predict another random record
+    within 0.5 points of the true model's NRMSE (measured: +0.002 points)."""
+    truth = spencer_1997()
+    rec = command_record(truth, duration=3.0, sample_rate=1000.0, seed=1)
+    val = command_record(truth, duration=3.0, sample_rate=1000.0, seed=2)
+    sines = [sine_record(truth, lv, seed=10 + k) for k, lv in enumerate((0.0, 1.0, 2.0))]
+    gm = identify(sines + [rec], "modified_bouc_wen", lag="fit", seed=0, uncertainty=False)
+    vb = make_batch([val])
+    nr, nr_true = gm.evaluate(vb)["nrmse"][0], truth.evaluate(vb)["nrmse"][0]
+    assert abs(nr - nr_true) <= 0.005
+    assert abs(gm.lag - 190.0) / 190.0 <= 0.10
 
 
 # ------------------------------------------------------------------------------ inverse
