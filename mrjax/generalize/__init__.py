@@ -75,7 +75,7 @@ per sample, $u_{k+1} = i_k + (u_k - i_k)\\,e^{-\\eta\\,\\Delta t_k}$, $u_0 = i_0
 (:func:`lag_current`).
 
 **Identification from time-varying commands.** :func:`identify` fits the laws (and the lag
-$\eta$, fitted or fixed) from records whose current or command voltage varies per sample,
+$\\eta$, fitted or fixed) from records whose current or command voltage varies per sample,
 constant-command sine tests, or any mix (Spencer et al. 1997; :func:`spencer_1997`,
 :func:`command_record` and :func:`sine_record` give the known answers).
 
