@@ -3,6 +3,9 @@
 ```
 mrjax fit DATA... --model kwok [--out DIR]          fit every test, write fit.json/csv + figures
 mrjax fit DATA... --model kwok --generalize two-step   ... plus current-dependent laws
+mrjax fit DATA... --model modified_bouc_wen --generalize joint [--lag fit|none|RATE]
+                                                    records with a per-sample command: laws
+                                                    of the command (and its lag) identified
 mrjax predict --fit DIR/fit.json DATA... [--out DIR]  evaluate the laws on other tests
 mrjax compare DATA... [--models all|kwok,...] [--hold-out current=0.25,0.75 | --folds K |
               --validate FILES] [--out DIR]        rank every model: criteria + held-out laws

@@ -7,10 +7,12 @@ import shutil
 
 import numpy as np
 
+from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, check_writable
+from .._io import atomic_output, check_writable, json_bytes
+from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..fitting import fit
-from ..generalize import generalize
+from ..generalize import GeneralizedModel, generalize, identify
 from ..models import get
 from ..objective import fit_mask
 from ._common import (
@@ -68,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)
+    if _carries_command(batch):
+        return _run_identify(args, model, bounds, batch, out)
     unknown = [lab for lab, i in zip(batch.labels, np.asarray(batch.current)) if np.isnan(i)]
     if args.generalize and unknown:  # fail before the fit, not after it
         raise InputError(f"--generalize needs the current of every test; it is unknown for "
@@ -90,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     if args.generalize:
         say(f"fitting current-dependent laws ({args.generalize})...")
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
-        gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask)
+        gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
+                        degrees=args.degrees)
     files = {"fit.json": result.to_json(generalized=gm).encode(),
              "fit.csv": result.to_csv().encode()}
     if not args.no_plots:
@@ -103,6 +108,108 @@ def run(args: argparse.Namespace) -> int:
     if gm is not None:
         print()
         print(gm.summary())
+    return 0
+
+
+def _carries_command(batch) -> bool:
+    """Whether any record carries a command voltage or a current that varies in time: such
+    records are fitted by `mrjax.generalize.identify` (with `--generalize joint`)."""
+    kind = np.asarray(batch.command_kind)
+    if not np.any(kind > 0):
+        return False
+    cmd = np.asarray(batch.command, float)
+    mask = np.asarray(batch.mask, bool)
+    units = COMMAND_UNITS_BY_KIND
+    return any(units[int(k)] == "V" or np.ptp(c[m]) > 0
+               for k, c, m in zip(kind, cmd, mask) if k > 0 and m.any())
+
+
+def parse_lag(text: str) -> str | float | None:
+    """`--lag`: `fit`, `none` or a rate eta [1/s] of the command filter du/dt = -eta (u - v)."""
+    t = text.strip().lower()
+    if t in ("fit", "none"):
+        return None if t == "none" else "fit"
+    try:
+        v = float(t)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'fit', 'none' or a rate in 1/s, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"the lag rate must be positive (1/s), got {text!r}")
+    return v
+
+
+def parse_degrees(text: str) -> dict[str, int]:
+    """`--degrees`: `NAME=DEG,...`, the polynomial degree of each named parameter's law."""
+    out: dict[str, int] = {}
+    for item in text.split(","):
+        name, sep, deg = item.partition("=")
+        try:
+            d = int(deg)
+        except ValueError:
+            d = -1
+        if not sep or not name.strip() or d < 0:
+            raise argparse.ArgumentTypeError(
+                f"expected NAME=DEG,... with DEG a non-negative integer, got {item!r}")
+        out[name.strip()] = d
+    return out
+
+
+def laws_csv(gm: GeneralizedModel) -> str:
+    """The laws as CSV: one row per coefficient (parameter, power of the command, value,
+    std-error, unit of the parameter, command unit), then the lag rate."""
+    unc = gm.uncertainty
+    rows = ["parameter,power,coefficient,stderr,unit,command_unit"]
+    for n, u in zip(gm.param_names, gm.model.units):
+        se = unc.stderr.get(n) if unc is not None else None
+        for k, c in enumerate(gm.coefficients(n)):
+            e = "" if se is None or not np.isfinite(se[k]) else f"{se[k]:.10g}"
+            rows.append(f"{n},{k},{c:.10g},{e},{u},{gm.command_unit}")
+    if gm.lag is not None:
+        e = unc.lag_stderr if unc is not None and unc.lag_stderr is not None else None
+        rows.append(f"eta,0,{gm.lag:.10g},{'' if e is None else f'{e:.10g}'},1/s,"
+                    f"{gm.command_unit}")
+    return "\n".join(rows) + "\n"
+
+
+def _run_identify(args, model, bounds, batch, out) -> int:
+    """`mrjax fit` on records with a command voltage or a time-varying current: the laws of the
+    command identified from every record at once (`mrjax.generalize.identify`)."""
+    C = batch.n_conditions
+    if args.generalize != "joint":
+        raise InputError(
+            f"{'--generalize two-step needs' if args.generalize else 'these records need'} "
+            "--generalize joint: a record carries a command voltage or a current that varies "
+            "in time (fitted by `identify`, laws of the command with its lag)")
+    if args.method != "pso+lm" or args.swarm != "separable":
+        raise InputError("records with a time-varying command are fitted by the joint swarm "
+                         "and polish: leave --method and --swarm at their defaults")
+    say(f"identifying {model.name} as laws of the command from {C} record"
+        f"{'s' if C != 1 else ''} (lag: {args.lag})...")
+    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, bounds=bounds, transient=args.transient,
+                  seed=args.seed, n_particles=args.particles,
+                  max_generations=args.generations or args.max_generations or 200,
+                  restarts=args.restarts)
+    ev = gm.evaluate(batch)
+    conds = [{"label": lab, "rms_N": float(r), "nrmse": float(n)}
+             for lab, r, n in zip(batch.labels, ev["rms"], ev["nrmse"])]
+    doc = {"model": model.name, "mrjax_version": __version__, "method": "identify",
+           "command_unit": gm.command_unit, "lag_1_s": gm.lag,
+           "timings_s": gm.info.get("timings"), "conditions": conds,
+           "generalized": gm.to_dict()}
+    files = {"fit.json": json_bytes(doc), "fit.csv": laws_csv(gm).encode()}
+    if not args.no_plots:
+        say("drawing figures...")
+        use_agg()
+        from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+        files.update(rp.command_figures(gm, batch, np.asarray(ev["predicted"], float)))
+    say(f"writing {len(files)} files to {out}...")
+    atomic_output(out, files)
+    for c in conds:
+        print(f"{c['label']}: RMS {c['rms_N']:.2f} N, NRMSE {100 * c['nrmse']:.2f} %")
+    print()
+    print(gm.summary())
     return 0
 
 
@@ -145,7 +252,16 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="search bounds of one parameter in SI units, e.g. c=500:5000 (repeatable; "
                    "an empty LO or HI keeps the default; see `mrjax models`)")
     p.add_argument("--generalize", choices=("two-step", "joint"),
-                   help="also fit current-dependent laws of the parameters")
+                   help="also fit current-dependent laws of the parameters; records with a "
+                   "command voltage or a time-varying current need 'joint' (the laws are then "
+                   "identified from every record at once)")
+    p.add_argument("--degrees", type=parse_degrees, metavar="NAME=DEG,...",
+                   help="polynomial degree of the named parameters' laws of the current or "
+                   "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
+                   "linear in a command voltage)")
+    p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
+                   help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
+                   "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")

@@ -74,13 +74,32 @@ first-order current lag $\\dot u = -\\eta (u - i)$ (Spencer et al. 1997) is disc
 per sample, $u_{k+1} = i_k + (u_k - i_k)\\,e^{-\\eta\\,\\Delta t_k}$, $u_0 = i_0$
 (:func:`lag_current`).
 
-**Inverse model.** :func:`inverse_current` returns, for the tanh model, the current in
-$[i_{min}, i_{max}]$ whose force is closest to a wanted force, saturating at the limits when
-the force is out of reach.
+**Identification from time-varying commands.** :func:`identify` fits the laws (and the lag
+$\\eta$, fitted or fixed) from records whose current or command voltage varies per sample,
+constant-command sine tests, or any mix (Spencer et al. 1997; :func:`spencer_1997`,
+:func:`command_record` and :func:`sine_record` give the known answers).
+
+**Inverse model.** :func:`inverse` (and :func:`inverse_current`, its command alone) returns
+the command in the admissible range whose force is closest to a wanted force: pointwise for
+static models, by a scan carrying the state (and the lag) for dynamic ones; it saturates at
+the limits, flagged, when the force is out of reach. :func:`closed_loop` simulates a
+one-storey structure with the damper driven by it under a skyhook law.
 """
 
 from ._generalize import generalize as generalize
+from ._identify import LAG_BOUNDS as LAG_BOUNDS
+from ._identify import MIN_GENERATIONS_DYNAMIC as MIN_GENERATIONS_DYNAMIC
+from ._identify import command_unit_of as command_unit_of
+from ._identify import identify as identify
+from ._inverse import ClosedLoop as ClosedLoop
+from ._inverse import Inverse as Inverse
+from ._inverse import closed_loop as closed_loop
+from ._inverse import inverse as inverse
 from ._inverse import inverse_current as inverse_current
+from ._joint import DELTA_RANGE as DELTA_RANGE
+from ._joint import LOG_FLOOR as LOG_FLOOR
+from ._joint import Q_RANGE as Q_RANGE
+from ._laws import COMMAND_UNITS as COMMAND_UNITS
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS
 from ._laws import Z_SCALE_MODELS as Z_SCALE_MODELS
@@ -89,4 +108,12 @@ from ._laws import canonical_z_scale as canonical_z_scale
 from ._laws import default_degrees as default_degrees
 from ._laws import group_currents as group_currents
 from ._laws import lag_current as lag_current
+from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
+from ._model import LawUncertainty as LawUncertainty
+from ._records import SPENCER_1997 as SPENCER_1997
+from ._records import command_record as command_record
+from ._records import random_command as random_command
+from ._records import random_motion as random_motion
+from ._records import sine_record as sine_record
+from ._records import spencer_1997 as spencer_1997

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Mapping
 from typing import Any, Literal
@@ -14,12 +15,25 @@ from jaxtyping import ArrayLike
 from .._errors import InputError
 from ..data import Batch
 from ..fitting import FitResult, as_batch
+from ..fitting import swarm_view as make_view
 from ..models import AbstractModel, resolve_model
 from ..objective import check_mask
 from ..pso import PSOParams
-from ._joint import JointStart, Layout, joint_data, joint_laws
-from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, group_currents, nodes
-from ._model import GeneralizedModel, total_rms
+from ..refine import DEFAULT_TOL
+from ._joint import (
+    N_LEVELS,
+    JointOutcome,
+    JointProblem,
+    Layout,
+    bounded_box,
+    build_objective,
+    joint_fit,
+    make_rows,
+    packed_rows,
+    total_rms_of,
+)
+from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
+from ._model import GeneralizedModel, LawUncertainty
 from ._two_step import covariances, law_spec, two_step_coefficients
 
 LawKind = Literal["poly", "exp"]
@@ -55,10 +69,27 @@ def _checked(result: FitResult, batch: Batch, method: str, weighting: str):
     return theta, cur
 
 
+@dataclasses.dataclass(frozen=True)
+class TwoStep:
+    """The two-step laws and what the joint stage starts from: `theta` (C, P) per-condition
+    parameters (z-scale normalised), `current` (C,) [A], `levels` (U,) distinct currents,
+    `layout`, `coef` (V,) two-step coefficients, `rms` [N] their total RMS on the records,
+    `rows` the records, `exp_cols` (P,) which laws are `"exp"`."""
+
+    theta: np.ndarray
+    current: np.ndarray
+    levels: np.ndarray
+    layout: Layout
+    coef: np.ndarray
+    rms: float
+    rows: tuple
+    exp_cols: np.ndarray
+
+
 def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
     """The two-step laws and everything the joint stage starts from.
 
-    **Returns:** `(JointStart, weighting used, support, info)`."""
+    **Returns:** `(TwoStep, weighting used, support, info)`."""
     model = result.model
     levels, _ = group_currents(cur)
     kinds, degs = law_spec(model, degrees, laws, levels.size)
@@ -81,14 +112,84 @@ def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
     lo_i, hi_i = float(levels.min()), float(levels.max())
     layout = Layout(kinds, tuple(d + 1 for d in degs),
                     tuple(nodes(lo_i, hi_i, d + 1) for d in degs))
-    data = joint_data(model, batch, m, cur)
-    law_rows = np.asarray(layout.lawset(coef)(jnp.asarray(cur)))
-    model_eval = resolve_model(model, np.concatenate([theta, law_rows]), batch.xdot, batch.dt,
-                               batch.mask)
-    rms = float(total_rms(model_eval, layout.lawset(coef), data))
-    start = JointStart(theta=theta, current=cur, levels=levels, layout=layout, coef=coef, rms=rms,
-                       data=data, model_eval=model_eval, exp_cols=exp_cols)
+    rows = packed_rows(batch, m, cur) if not model.dynamic else make_rows(batch, m, cur)
+    rms = _score(model, layout, coef, rows, np.concatenate(
+        [theta, np.asarray(layout.lawset(coef)(jnp.asarray(levels)))]))
+    start = TwoStep(theta=theta, current=cur, levels=levels, layout=layout, coef=coef, rms=rms,
+                    rows=rows, exp_cols=exp_cols)
     return start, used, support, {"two_step_total_rms_N": rms, "weighting_note": note}
+
+
+def _score(model: AbstractModel, layout: Layout, coef, rows, theta_rows) -> float:
+    """Total RMS [N] of the laws `coef` on `rows`, sub-steps resolved for `theta_rows`."""
+    obj = build_objective(model, layout, layout.V @ np.asarray(coef, float))
+    if model.dynamic:
+        xdot = np.concatenate([np.asarray(r.xdot).ravel() for r in rows])
+        dt = np.concatenate([np.asarray(r.dt).ravel() for r in rows])
+        mask = np.concatenate([np.asarray(r.mask).ravel() for r in rows])
+        model = resolve_model(model, theta_rows, xdot, dt, mask)
+    return float(total_rms_of(model, obj.coding, obj.coding.nu0, 0.0, rows))
+
+
+def _search_box(model: AbstractModel, start: TwoStep):
+    """Node values of the two-step laws and the swarm's box around them: +-(3 x the scatter of
+    the per-condition values about the law + 25 % of the value), non-negative parameters kept
+    non-negative. Returns `(nu0, half, box_lo, box_hi)`, each (V,)."""
+    layout, kinds = start.layout, start.layout.kinds
+    nu0 = layout.V @ start.coef
+    law_rows = np.asarray(layout.lawset(start.coef)(jnp.asarray(start.current)))
+    dev = np.sqrt(np.mean((fit_space(start.theta, start.exp_cols)
+                           - fit_space(law_rows, start.exp_cols)) ** 2, axis=0))
+    lo_m, hi_m = model.bounds
+    half = np.zeros(layout.n)
+    box_lo, box_hi = np.zeros(layout.n), np.zeros(layout.n)
+    for p in range(model.n_params):
+        b = layout.block(p)
+        tiny = 1e-6 * (hi_m[p] - lo_m[p]) + 1e-9
+        h = 3.0 * dev[p] + 0.25 * np.abs(nu0[b]) + tiny
+        half[b] = h
+        box_lo[b], box_hi[b] = nu0[b] - h, nu0[b] + h
+        if kinds[p] == "poly" and lo_m[p] >= 0:
+            box_lo[b] = np.where(nu0[b] >= 0, np.maximum(box_lo[b], 0.0), box_lo[b])
+    return nu0, half, box_lo, box_hi
+
+
+def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool) -> JointProblem:
+    """The joint fit's problem around the two-step laws: the swarm searches the box of
+    :func:`_search_box` (a Bouc-Wen shape as `(log delta, q)` around the per-condition values),
+    intersected with the polish's box (`bounded_box`: every node value within the model's
+    bounds)."""
+    nu0, half, box_lo, box_hi = _search_box(model, start)
+    names, kinds, sizes = model.param_names, start.layout.kinds, start.layout.sizes
+    z_scale = model.name in Z_SCALE_MODELS
+    shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
+    pair = z_scale and all(sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix)
+    obj = build_objective(model, start.layout, nu0, z_scale=z_scale, pair=pair)
+    coding = obj.coding
+    lm_lo, lm_hi = bounded_box(model, start.layout, coding, *model.bounds)
+    D = coding.n_position
+    s_lo = list(box_lo[list(coding.direct)])
+    s_hi = list(box_hi[list(coding.direct)])
+    if pair:  # (log delta, q) of every condition about the two-step value
+        th = start.theta
+        d_c = np.log(np.maximum(th[:, shape_ix[0]], 1e-300))
+        q_c = th[:, shape_ix[2]] / th[:, shape_ix[0]]
+        z0 = coding.bounded_of(nu0, 0.0)[len(s_lo):len(s_lo) + 2]
+        for v, c in zip(z0, (d_c, q_c)):
+            h = 3.0 * np.sqrt(np.mean((c - v) ** 2)) + 0.25 * abs(v) + 1e-6
+            s_lo.append(v - h)
+            s_hi.append(v + h)
+    s_lo = np.clip(np.asarray(s_lo, float), lm_lo[:D], lm_hi[:D])
+    s_hi = np.clip(np.asarray(s_hi, float), lm_lo[:D], lm_hi[:D])
+    view = None
+    if use_view:
+        v = make_view(batch)
+        view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
+                         np.asarray(v.batch.current, float))
+    lo, hi = float(start.levels.min()), float(start.levels.max())
+    return JointProblem(model=model, layout=start.layout, objective=obj, lower=s_lo,
+                        upper=s_hi, lm_lower=lm_lo, lm_upper=lm_hi, full=start.rows, view=view,
+                        levels=np.linspace(lo, hi, N_LEVELS))
 
 
 def generalize(
@@ -104,30 +205,43 @@ def generalize(
     n_particles: int = 50,
     max_generations: int = 100,
     pso_params: PSOParams | None = None,
+    restarts: int = 1,
     polish: bool = True,
     polish_steps: int = 100,
+    tol: float = DEFAULT_TOL,
     mask: ArrayLike | None = None,
+    swarm_view: bool | None = None,
+    uncertainty: bool = True,
 ) -> GeneralizedModel:
     """Make a current-dependent model from per-condition fits (eq 24-29).
 
     **Arguments:**
 
     - `result`: the per-condition :class:`mrjax.FitResult` of `batch`.
-    - `batch`: the conditions it was fitted on (their currents must be known).
+    - `batch`: the conditions it was fitted on (their currents must be known). Records with
+        a per-sample current or command are identified by :func:`identify` instead.
     - `method`: `"two-step"` (group by current, average, fit the laws: the paper's) or
-        `"joint"` (law coefficients fitted on all conditions at once: swarm, then polish;
-        never worse than two-step on these data). See the package docstring.
+        `"joint"` (law coefficients fitted on all conditions at once, starting from the
+        two-step laws: the joint fit of :func:`identify`, swarm then polish; never worse than
+        two-step on these data). See the package docstring.
     - `degrees`: parameter name -> polynomial degree (or one int for all); the others get
         :func:`default_degrees`.
     - `laws`: parameter name -> `"poly"` (default) or `"exp"` ($\\exp(a + b\\,i)$ at degree 1).
     - `weighting`: two-step averaging, `"covariance"` (default; inverse-covariance weighted,
         generalized least squares) or `"equal"` (the paper's plain means).
     - `key`, `seed`: PRNG key of the joint swarm (default `jax.random.key(seed)`).
-    - `n_particles`, `max_generations`, `pso_params`: joint swarm settings.
-    - `polish`, `polish_steps`: joint Levenberg-Marquardt polish and its maximum steps.
-    - `mask`: (C, T) samples to score (default the batch mask; combined with it).
+    - `n_particles`, `max_generations`, `pso_params`, `restarts`: joint swarm settings
+        (`restarts` independent swarms in one compiled program, the best kept).
+    - `polish`, `polish_steps`, `tol`: the joint Levenberg-Marquardt polish, its maximum steps
+        per stage and its stop (`mrjax.refine.lm_solve`; the full records to 100 x `tol`
+        after the views).
+    - `mask`: (C, T) samples to score (default the batch mask; combined with it). The swarm's
+        views score every sample of theirs.
+    - `swarm_view`: let the joint swarm and a first polish score the records' views
+        (`mrjax.fitting.swarm_view`); default: for the ODE models.
+    - `uncertainty`: std-errors of the joint coefficients (`GeneralizedModel.uncertainty`).
 
-    **Returns:** a :class:`GeneralizedModel`.
+    **Returns:** a :class:`GeneralizedModel` (laws of the current, in A).
     """
     t0 = time.perf_counter()
     batch = as_batch(batch)
@@ -143,18 +257,43 @@ def generalize(
         info["timings"] = timings
         return _make(model, start.layout, start.coef, "two-step", start.rms, rng, used, support,
                      info)
-    coef, rms = joint_laws(
-        model, batch, start, key=jax.random.key(int(seed)) if key is None else key,
+    use_view = model.dynamic if swarm_view is None else bool(swarm_view)
+    problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view)
+    out = joint_fit(
+        problem, key=jax.random.key(int(seed)) if key is None else key,
         n_particles=n_particles, max_generations=max_generations, pso_params=pso_params,
-        polish=polish, polish_steps=polish_steps, info=info, timings=timings)
+        restarts=restarts, polish=polish, polish_steps=polish_steps, tol=tol, uncertainty=uncertainty,
+        start=(problem.coding.nu0, 0.0), info=info, timings=timings)
+    if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)
+        out = JointOutcome(coef=start.coef, eta=None, rms=start.rms)
+        info["fell_back_to_two_step"] = True
     timings["total"] = time.perf_counter() - t0
     info["timings"] = timings
-    return _make(model, start.layout, coef, "joint", rms, rng, used, support, info)
+    return _make(model, start.layout, out.coef, "joint", out.rms, rng, used, support, info,
+                 uncertainty=law_uncertainty_of(model, start.layout, out))
+
+
+def law_uncertainty_of(model: AbstractModel, layout: Layout, out: JointOutcome
+                       ) -> LawUncertainty | None:
+    """The :class:`LawUncertainty` of a joint outcome (None without std-errors)."""
+    if out.stderr is None:
+        return None
+    names = model.param_names
+    se = {n: tuple(float(v) for v in out.stderr[layout.block(p)]) for p, n in enumerate(names)}
+    ok = {n: tuple(bool(v) for v in out.identifiable[layout.block(p)])
+          for p, n in enumerate(names)}
+    lag = out.eta is not None and out.stderr.size > layout.n and np.isfinite(out.stderr[-1]) \
+        and out.stderr[-1] > 0
+    return LawUncertainty(stderr=se, identifiable=ok,
+                          lag_stderr=float(out.stderr[-1]) if lag else None,
+                          lag_identifiable=bool(out.identifiable[-1]) if lag else None,
+                          sigma=out.sigma, dof=out.dof)
 
 
 def _make(model: AbstractModel, layout: Layout, coef, method: str, rms: float, rng, weighting,
-          support, info: dict[str, Any]) -> GeneralizedModel:
+          support, info: dict[str, Any], **extra) -> GeneralizedModel:
     laws = {n: Law(layout.kinds[p], np.asarray(coef)[layout.block(p)])
             for p, n in enumerate(model.param_names)}
     return GeneralizedModel(model=model, laws=laws, method=method, total_rms=rms,
-                            current_range=rng, weighting=weighting, support=support, info=info)
+                            current_range=rng, weighting=weighting, support=support, info=info,
+                            **extra)

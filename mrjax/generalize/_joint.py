@@ -1,6 +1,50 @@
-"""The joint generalization: the law coefficients fitted on all conditions at once (swarm over
-the laws of the nonlinear parameters, variable projection for the linear ones, then one
-Levenberg-Marquardt polish of every coefficient)."""
+"""The one home of the joint fit of law coefficients: every record at once, swarm on the
+records' views, Levenberg-Marquardt on the views and then on the full records, std-errors.
+
+Both `generalize(result, batch, method="joint")` (a start and a box from the two-step laws of
+per-test fits) and :func:`identify` (a box from the parameters' bounds, no per-test fit) build a
+:class:`JointProblem` and call :func:`joint_fit`.
+
+**Unknowns.** Each law of degree d is represented by its values at d + 1 nodes spread over the
+command range (log values for an `"exp"` law): a well-scaled, unit-bearing parametrisation
+(:class:`Layout`). The unknowns are these node values and, when fitted, the rate $\\eta$ of the
+command filter. :class:`Coding` maps a swarm position, or the vector of the Levenberg-Marquardt
+variables, to them:
+
+- the laws of *linear* parameters with `"poly"` laws are not searched by the swarm: given the
+    others they are linear in their coefficients (column $A_j(t)\\,u(t)^m$ of the design), so
+    every particle gets them by exact least squares (variable projection,
+    `mrjax.objective.gram_terms` / `solve_normal`, Gram terms summed over every record);
+- in Bouc-Wen-type models the scale of z is redundant (`canonical_z_scale`): it is fixed by
+    $\\delta(u_0) = \\beta(u_0) + \\gamma(u_0)$ ($|z|_{max} = 1$) at the first node $u_0$ of
+    delta's law, so delta's value there is derived, not an unknown. With constant delta, beta
+    and gamma laws and no user bounds on them, :func:`identify`'s swarm searches the shape as
+    $(\\log\\delta, q = \\gamma/\\delta)$ instead of $(\\beta, \\gamma)$: the inverse yield
+    displacement $1/\\delta$ and the loop's shape, each in its own, data-free range;
+- $\\eta$ is searched and polished as $\\log\\eta$.
+
+**Records.** A record is a row with its own command: a constant (a sine test at one current or
+voltage) or a per-sample signal $v(t)$, which the laws see through the filter
+$u_{k+1} = v_k + (u_k - v_k)e^{-\\eta\\Delta t_k}$, $u_0 = v_0$ (:func:`lag_current`; identity on
+a constant). Rows of similar length are grouped (:func:`length_groups`, at most
+`MAX_GROUPS` groups), so that a short test is not padded to the longest one; a static model
+without per-sample commands packs its samples into rows of `PACK_ROW` (one current each).
+
+**Stages** (:func:`joint_fit`), the pattern of `mrjax.fit` for dynamic models:
+
+1. the batched swarm (:func:`mrjax.pso.swarm`, `restarts` independent swarms as its
+    "conditions") scores every particle on the records' *views* (`mrjax.fitting.swarm_view`:
+    about 64 samples per period, or 32 per period of a broadband record's bandwidth),
+    integrating with one L-stable step per sample;
+2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown, first on the views to
+    `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
+    `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data;
+3. the total RMS on every scored sample of the full records, and the linearised std-errors of
+    every coefficient and of $\\eta$ (`mrjax.refine.jacobian_uncertainty`, mapped to the
+    coefficients by the delta method) with identifiability flags.
+
+The result is never worse (total RMS on the full records) than the start it was given.
+"""
 
 from __future__ import annotations
 
@@ -18,17 +62,40 @@ from jaxtyping import Array, Float
 
 from ..data import Batch
 from ..models import AbstractModel, resolve_model
-from ..objective import gram_terms, residuals, rms_from_gram, solve_normal
+from ..objective import gram_terms, rms_from_gram, solve_normal
 from ..pso import AbstractObjective, PSOParams, default_params, swarm
-from ..refine import lm_solve, status_name
-from ._laws import PACK_ROW, LawSet, fit_space, vander
-from ._model import total_rms
+from ..refine import BOUND_NUDGE, DEFAULT_TOL, jacobian_uncertainty, lm_solve, status_name
+from ._laws import PACK_ROW, Z_SCALE_MODELS, LawSet, horner, lag_current, vander
+
+#: After the polish on the views, the polish of the full records stops at this multiple of
+#: `tol` (as `mrjax.fit` does for dynamic models).
+FULL_TOL_FACTOR = 100.0
+#: Commands at which the laws are evaluated for the sub-step policy (spanning the data).
+N_LEVELS = 9
+#: At most this many groups of rows of similar length (each group is one compiled `vmap`).
+MAX_GROUPS = 3
+#: A grouping is good enough once the padded samples are at most this multiple of the real
+#: ones (fewer groups compile faster).
+PAD_SLACK = 1.25
 
 
+#: Range [1/m] of delta, the inverse yield displacement of a Bouc-Wen-type model on the
+#: |z|max = 1 scale, when delta, beta and gamma are constant laws not bounded by the user:
+#: yield within 10 um to 1 m of travel (Spencer's 1997 set: 21 um).
+DELTA_RANGE: tuple[float, float] = (1.0, 1e5)
+#: Range of q = gamma / delta with it (beta = (1 - q) delta): q = 0.5 is beta = gamma
+#: (Spencer's), q = 10 is beta = -0.9 gamma (the UTFSM fits).
+Q_RANGE: tuple[float, float] = (0.0, 20.0)
+#: A non-negative parameter whose box spans two decades or more is searched as a logarithm
+#: (where the caller asks for it), from max(lower, LOG_FLOOR x upper) to its upper bound.
+LOG_FLOOR = 1e-4
+
+
+# ------------------------------------------------------------------------------ layout
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Host description of the unknowns: per parameter its law kind, number of coefficients
-    and interpolation nodes; the node-value <-> coefficient maps."""
+    """Host description of the laws: per parameter its law kind, number of coefficients and
+    interpolation nodes (in the command unit); the node-value <-> coefficient maps."""
 
     kinds: tuple[str, ...]
     sizes: tuple[int, ...]
@@ -63,21 +130,105 @@ class Layout:
         return LawSet(jnp.asarray(coef, float), self.kinds, self.sizes)
 
 
-def joint_data(model: AbstractModel, batch: Batch, mask: np.ndarray, cur: np.ndarray):
-    """`(x, xdot, dt, force, mask, current)` of the joint objective, rows with one current each.
+# ------------------------------------------------------------------------------ records
+class Rows(eqx.Module):
+    """Records of one shape for the joint objective: `x` [m], `xdot` [m/s], `dt` [s], `force`
+    [N], `mask` (R, T); `command` (R,) constant commands or (R, T) per-sample commands (in the
+    laws' unit)."""
 
-    A static model's force at a sample does not depend on the other samples, so its scored
-    samples are packed into rows of `PACK_ROW` samples, each row holding one current (no padding
-    of short conditions to the longest one: the same samples, the same total RMS, often several
-    times fewer evaluations). Dynamic models keep one row per condition.
+    x: Float[Array, "R T"]
+    xdot: Float[Array, "R T"]
+    dt: Float[Array, "R T"]
+    force: Float[Array, "R T"]
+    mask: Array
+    command: Array
+
+    def signal(self, eta, use_lag: bool):
+        """The command the laws see: (R,) constants, or (R, T) through the filter."""
+        if self.command.ndim == 1 or not use_lag:
+            return self.command
+        return jax.vmap(lag_current, in_axes=(0, 0, None))(self.command, self.dt, eta)
+
+    @property
+    def n_scored(self) -> int:
+        return int(np.asarray(self.mask).sum())
+
+
+def length_groups(lengths: np.ndarray, max_groups: int = MAX_GROUPS) -> list[np.ndarray]:
+    """Indices of rows split into at most `max_groups` groups of similar length: the fewest
+    groups whose padded total is within `PAD_SLACK` of the real one (else the best of
+    `max_groups`), by dynamic programming over the sorted lengths."""
+    lengths = np.asarray(lengths, int)
+    order = np.argsort(lengths, kind="stable")
+    L = lengths[order]
+    n = L.size
+    inf = float("inf")
+    # best[g][j]: least padded total of the first j rows in g groups; cut[g][j] the start
+    best = [[inf] * (n + 1) for _ in range(max_groups + 1)]
+    cut = [[0] * (n + 1) for _ in range(max_groups + 1)]
+    best[0][0] = 0.0
+    for g in range(1, max_groups + 1):
+        for j in range(1, n + 1):
+            for i in range(j):
+                v = best[g - 1][i] + (j - i) * L[j - 1]
+                if v < best[g][j]:
+                    best[g][j], cut[g][j] = v, i
+    real = float(L.sum())
+    g_use = next((g for g in range(1, max_groups + 1) if best[g][n] <= PAD_SLACK * real),
+                 min(max_groups, n))
+    groups, j = [], n
+    for g in range(g_use, 0, -1):
+        i = cut[g][j]
+        if j > i:
+            groups.append(order[i:j])
+        j = i
+    return groups[::-1]
+
+
+def make_rows(batch: Batch, mask: np.ndarray, command: np.ndarray, *,
+              max_groups: int = MAX_GROUPS) -> tuple[Rows, ...]:
+    """The records of `batch` as groups of rows: per-sample commands and constant ones apart,
+    each split by length (:func:`length_groups`).
+
+    **Arguments:** `batch`; `mask` (C, T) scored samples; `command` (C,) constant commands or
+    (C, T) per sample (rows whose command does not vary become constant rows).
     """
-    if model.dynamic:
-        return (batch.x, batch.xdot, batch.dt, batch.force, jnp.asarray(mask), jnp.asarray(cur))
+    mask = np.asarray(mask, bool)
+    cmd = np.asarray(command, float)
+    n = mask.shape[1] - np.argmax(mask[:, ::-1], axis=1)  # last scored sample + 1
+    n = np.where(mask.any(axis=1), n, 1)
+    if cmd.ndim == 2:
+        m = np.asarray(batch.mask, bool)
+        span = np.array([np.ptp(cmd[i][m[i]]) for i in range(cmd.shape[0])])
+        varying = span > 0
+        level = np.array([cmd[i][m[i]][0] for i in range(cmd.shape[0])])
+    else:
+        varying = np.zeros(cmd.shape[0], bool)
+        level = cmd
+    arrays = {k: np.asarray(getattr(batch, k)) for k in ("x", "xdot", "dt", "force")}
+    out = []
+    for sel in (np.flatnonzero(~varying), np.flatnonzero(varying)):
+        if sel.size == 0:
+            continue
+        for g in length_groups(n[sel], max_groups):
+            idx = sel[g]
+            T = int(n[idx].max())
+            c = cmd[idx, :T] if varying[idx[0]] else level[idx]
+            out.append(Rows(*(jnp.asarray(arrays[k][idx, :T]) for k in ("x", "xdot", "dt",
+                                                                          "force")),
+                            mask=jnp.asarray(mask[idx, :T]), command=jnp.asarray(c, float)))
+    return tuple(out)
+
+
+def packed_rows(batch: Batch, mask: np.ndarray, current: np.ndarray) -> tuple[Rows, ...]:
+    """A static model's scored samples packed into rows of `PACK_ROW` samples, one current
+    each: its force at a sample does not depend on the others, so short conditions are not
+    padded to the longest one (the same samples, the same total RMS)."""
     arrays = [np.asarray(a, float) for a in (batch.x, batch.xdot, batch.dt, batch.force)]
     L = PACK_ROW
     pieces, currents = [], []
-    for v in np.unique(cur):
-        r = np.flatnonzero(cur == v)
+    for v in np.unique(current):
+        r = np.flatnonzero(current == v)
         samples = [a[r][mask[r]] for a in arrays]
         for start in range(0, samples[0].size, L):
             pieces.append([a[start:start + L] for a in samples])
@@ -87,249 +238,572 @@ def joint_data(model: AbstractModel, batch: Batch, mask: np.ndarray, cur: np.nda
     out[2] = 1.0  # sample interval of the padding (unused by static models)
     keep = np.zeros((R, L), bool)
     for u, piece in enumerate(pieces):
-        n = piece[0].size
+        k = piece[0].size
         for a in range(4):
-            out[a, u, :n] = piece[a]
-        keep[u, :n] = True
-    return (*(jnp.asarray(a) for a in out), jnp.asarray(keep), jnp.asarray(currents, float))
+            out[a, u, :k] = piece[a]
+        keep[u, :k] = True
+    return (Rows(*(jnp.asarray(a) for a in out), mask=jnp.asarray(keep),
+                 command=jnp.asarray(currents, float)),)
 
 
-# ------------------------------------------------------------------------------ joint
-class JointObjective(AbstractObjective):
-    """Total RMS [N] of one particle (node values of the searched laws) over all conditions;
-    the laws of linear parameters come from exact linear least squares."""
+def flat_records(data: tuple[Rows, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(xdot, dt, mask)` of every row of every group, flattened (for the sub-step policy)."""
+    cat = [np.concatenate([np.asarray(getattr(r, k)).ravel() for r in data])
+           for k in ("xdot", "dt", "mask")]
+    return cat[0], cat[1], cat[2].astype(bool)
 
-    model: AbstractModel
+
+# ------------------------------------------------------------------------------ coding
+class Coding(eqx.Module):
+    """How the unknowns map to the law coefficients and the lag rate (see the module notes).
+
+    **Fields:** `nu0` (V,) node values where nothing else sets them; `Vinv` (V, V) node
+    values -> coefficients; `eta0` the lag rate [1/s] when it is not fitted; static: `kinds`,
+    `sizes` of the laws; `direct` the node indices a swarm position sets (its first dims),
+    `direct_log` whether each is searched as a logarithm; `pair` the (beta, gamma) node
+    indices set from `(log delta, q)` dims after them, or (); `derived` `(delta node index,
+    delta parameter, beta parameter, gamma parameter, u0)` of the z-scale, or (); `free` the
+    node indices the Levenberg-Marquardt polish varies; `lag` `"fit"`, `"fixed"` or `"none"`.
+    """
+
     nu0: Float[Array, " V"]
     Vinv: Float[Array, "V V"]
-    V_ls: Float[Array, "K K"]
-    search_idx: tuple[int, ...] = eqx.field(static=True)
-    ls_idx: tuple[int, ...] = eqx.field(static=True)  # coefficient indices solved by LS
-    ls_cols: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, power)
-    exp_lin: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, param)
+    eta0: Float[Array, ""]
     kinds: tuple[str, ...] = eqx.field(static=True)
     sizes: tuple[int, ...] = eqx.field(static=True)
+    direct: tuple[int, ...] = eqx.field(static=True)
+    direct_log: tuple[bool, ...] = eqx.field(static=True)
+    pair: tuple[int, ...] = eqx.field(static=True)
+    derived: tuple = eqx.field(static=True)
+    free: tuple[int, ...] = eqx.field(static=True)
+    lag: str = eqx.field(static=True)
+    ls: tuple[int, ...] = eqx.field(static=True, default=())
+
+    @property
+    def use_lag(self) -> bool:
+        return self.lag != "none"
+
+    @property
+    def n_position(self) -> int:
+        """Dimension of a swarm position."""
+        return len(self.direct) + 2 * bool(self.pair) + (self.lag == "fit")
+
+    @property
+    def n_free(self) -> int:
+        """Number of Levenberg-Marquardt variables."""
+        return len(self.free) + (self.lag == "fit")
+
+    def coefficients(self, nu):
+        """Law coefficients (V,) of node values `nu` (derived entries completed)."""
+        return self.Vinv @ self.complete(nu)
+
+    def lawset(self, nu) -> LawSet:
+        return LawSet(self.coefficients(nu), self.kinds, self.sizes)
+
+    def _law_value(self, coef, p: int, u: float):
+        o = int(sum(self.sizes[:p]))
+        v = horner([coef[o + m] for m in range(self.sizes[p])], jnp.asarray(u, coef.dtype), jnp)
+        return jnp.exp(v) if self.kinds[p] == "exp" else v
+
+    def complete(self, nu):
+        """`nu` with the z-scale's derived node value: delta(u0) = beta(u0) + gamma(u0)."""
+        if not self.derived:
+            return nu
+        k, pd, pb, pg, u0 = self.derived
+        coef = self.Vinv @ nu
+        target = self._law_value(coef, pb, u0) + self._law_value(coef, pg, u0)
+        if self.kinds[pd] == "exp":
+            target = jnp.log(target)
+        return nu.at[k].set(target)
+
+    def from_position(self, position):
+        """`(nu, eta)` of a swarm position (linear laws' entries left at `nu0`)."""
+        D = len(self.direct)
+        nu = self.nu0
+        if D:
+            v = position[:D]
+            logs = np.asarray(self.direct_log, bool)
+            if logs.any():
+                v = jnp.where(logs, jnp.exp(v), v)
+            nu = nu.at[jnp.asarray(self.direct, int)].set(v)
+        k = D
+        if self.pair:
+            d, q = jnp.exp(position[k]), position[k + 1]
+            nu = nu.at[self.pair[0]].set((1.0 - q) * d).at[self.pair[1]].set(q * d)
+            k += 2
+        eta = jnp.exp(position[k]) if self.lag == "fit" else self.eta0
+        return self.complete(nu), eta
+
+    def from_bounded(self, z):
+        """`(nu, eta)` of the polish's variables `z`: a swarm position followed by the node
+        values of the laws the swarm solves by least squares (see :meth:`bounded_of`)."""
+        D = self.n_position
+        nu, eta = self.from_position(z[:D])
+        if self.ls:
+            nu = nu.at[jnp.asarray(self.ls, int)].set(z[D:])
+        return self.complete(nu), eta
+
+    def bounded_of(self, nu, eta) -> np.ndarray:
+        """The polish's variables of `(nu, eta)` (host): the swarm's coordinates (node values,
+        their logarithms, `(log delta, q)`, `log eta`) and the least-squares node values."""
+        nu = np.asarray(nu, float)
+        z = [np.log(nu[k]) if lg else nu[k] for k, lg in zip(self.direct, self.direct_log)]
+        if self.pair:
+            b, g = nu[self.pair[0]], nu[self.pair[1]]
+            d = b + g
+            z += [math.log(d) if d > 0 else -np.inf, g / d if d != 0 else 0.0]
+        if self.lag == "fit":
+            z.append(math.log(float(eta)))
+        z += [nu[k] for k in self.ls]
+        return np.asarray(z, float)
+
+    def from_free(self, phi):
+        """`(nu, eta)` of the polish's variables: the free node values, then log eta."""
+        nu = self.nu0.at[jnp.asarray(self.free, int)].set(phi[:len(self.free)]) if self.free \
+            else self.nu0
+        eta = jnp.exp(phi[len(self.free)]) if self.lag == "fit" else self.eta0
+        return self.complete(nu), eta
+
+    def free_of(self, nu, eta) -> np.ndarray:
+        """The polish's variables of `(nu, eta)` (host)."""
+        phi = np.asarray(nu, float)[list(self.free)]
+        if self.lag == "fit":
+            phi = np.append(phi, math.log(float(eta)))
+        return phi
+
+
+# ------------------------------------------------------------------------------ objectives
+class JointObjective(AbstractObjective):
+    """Total RMS [N] of one swarm position over every scored sample of every record; the laws
+    of linear "poly" parameters come from exact linear least squares."""
+
+    model: AbstractModel
+    coding: Coding
+    V_ls: Float[Array, "K K"]
+    ls_idx: tuple[int, ...] = eqx.field(static=True)  # node indices solved by LS
+    ls_cols: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, power)
+    n_basis: int = eqx.field(static=True)  # leading ls_cols on parameter-free columns
+    exp_lin: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, param)
+
+    def _gram(self, rows: Rows, laws: LawSet, eta):
+        u = rows.signal(eta, self.coding.use_lag)
+        theta = laws(u)  # (R, P) or (R, T, P)
+        F = jax.vmap(self.model.basis)(rows.x, rows.xdot)  # (R, T, p)
+        Z, b = jax.vmap(self.model.hysteresis)(theta, rows.x, rows.xdot, rows.dt)
+        p = F.shape[-1]
+        uT = u if u.ndim == 2 else jnp.broadcast_to(u[:, None], rows.x.shape)
+
+        def col(j):
+            return F[..., j] if j < p else Z[..., j - p]
+
+        def param(q):
+            return theta[..., q] if theta.ndim == 3 else theta[:, q][:, None]
+
+        for j, q in self.exp_lin:  # linear parameters with an "exp" law: known given nu
+            b = b + param(q) * col(j)
+
+        def cols(which):
+            c = [col(j) if m == 0 else col(j) * uT**m for j, m in which]
+            return jnp.stack(c, axis=-1) if c else jnp.zeros(rows.x.shape + (0,), rows.x.dtype)
+
+        # F-type columns (parameter-free with a data-only command) are computed once under the
+        # swarm's vmap over particles; the Z-type ones per particle
+        gr = jax.vmap(gram_terms)(cols(self.ls_cols[:self.n_basis]),
+                                  cols(self.ls_cols[self.n_basis:]), b, rows.force, rows.mask)
+        return jax.tree.map(lambda a: jnp.sum(a, axis=0), gr)
 
     def _solve(self, position, data):
-        x, xdot, dt, force, mask, cur = data
-        nu = self.nu0.at[jnp.asarray(self.search_idx, int)].set(position) if self.search_idx \
-            else self.nu0
-        coef = self.Vinv @ nu
-        theta = LawSet(coef, self.kinds, self.sizes)(cur)  # (C, P); LS entries ignored
-        # F: parameter-free regressors (the same for every particle: under the swarm's vmap
-        # everything built from F and the force alone is computed once); Z, b: per particle
-        F = jax.vmap(self.model.basis)(x, xdot)  # (C, T, p)
-        Z, b = jax.vmap(self.model.hysteresis)(theta, x, xdot, dt)  # (C, T, k), (C, T)
-        p, k = F.shape[-1], Z.shape[-1]
-        for j, q in self.exp_lin:  # linear parameters with an "exp" law: known given nu
-            col = F[:, :, j] if j < p else Z[:, :, j - p]
-            b = b + theta[:, q][:, None] * col
-        gr = jax.vmap(gram_terms)(F, Z, b, force, mask)  # per condition: A = [F, Z], y = force - b
-        rr, n = jnp.sum(gr.yy), jnp.sum(gr.n)
-        K = len(self.ls_cols)
-        if K == 0:
-            return nu, rms_from_gram(jnp.zeros(0), jnp.zeros((0, 0)), jnp.zeros(0), rr, n)
-        AA = jax.vmap(lambda q: q.G)(gr)  # (C, p+k, p+k)
-        Ar = jax.vmap(lambda q: q.g)(gr)  # (C, p+k)
-        # expand to the law coefficients: column (j, m) is A_j * i_c^m
-        E = jnp.zeros((cur.shape[0], p + k, K), cur.dtype)
-        for col, (j, m_) in enumerate(self.ls_cols):
-            E = E.at[:, j, col].set(cur**m_)
-        GA = jnp.einsum("cjk,cjl,clm->km", E, AA, E)
-        g = jnp.einsum("cjk,cj->k", E, Ar)
-        none = jnp.zeros((0,), GA.dtype)
-        w = solve_normal(none.reshape(0, 0), none.reshape(K, 0), GA, none, g)
-        rms = rms_from_gram(w, GA, g, rr, n)
+        nu, eta = self.coding.from_position(position)
+        laws = self.coding.lawset(nu)
+        gr = None
+        for rows in data:
+            g = self._gram(rows, laws, eta)
+            gr = g if gr is None else jax.tree.map(jnp.add, gr, g)
+        if not self.ls_cols:
+            none = jnp.zeros((0,), gr.yy.dtype)
+            return nu, eta, rms_from_gram(none, none.reshape(0, 0), none, gr.yy, gr.n)
+        w = solve_normal(gr.FF, gr.ZF, gr.ZZ, gr.Fy, gr.Zy)
+        rms = rms_from_gram(w, gr.G, gr.g, gr.yy, gr.n)
         nu = nu.at[jnp.asarray(self.ls_idx, int)].set(self.V_ls @ w)
-        return nu, rms
+        return nu, eta, rms
 
     def __call__(self, position, data):
-        return self._solve(position, data)[1]
+        return self._solve(position, data)[2]
 
     def to_params(self, position, data):
-        return self._solve(position, data)[0]
+        nu, eta, _ = self._solve(position, data)
+        return jnp.concatenate([nu, jnp.reshape(eta, (1,))])
 
 
 @eqx.filter_jit
-def objective_at(obj, position, data):
-    """Node values and total RMS [N] of one swarm position (jitted)."""
+def objective_at(obj: JointObjective, position, data):
+    """`(nu, eta, total RMS [N])` of one swarm position (jitted)."""
     return obj._solve(position, data)
 
 
+def joint_residuals(model: AbstractModel, coding: Coding, nu, eta, data: tuple[Rows, ...]):
+    """Masked residuals [N] of the laws of node values `nu` (and lag `eta`) on every record,
+    flattened (zero on unscored samples)."""
+    laws = coding.lawset(nu)
+    out = []
+    for rows in data:
+        theta = laws(rows.signal(eta, coding.use_lag))
+        pred = jax.vmap(model.force)(theta, rows.x, rows.xdot, rows.dt)
+        out.append(jnp.where(rows.mask, pred - rows.force, 0.0).ravel())
+    return jnp.concatenate(out)
+
+
+def _rms(r, n):
+    rms = jnp.sqrt(jnp.sum(r * r) / jnp.maximum(n, 1))
+    return jnp.where(jnp.isfinite(rms), rms, jnp.inf)
+
+
+def _n_scored(data):
+    return sum(jnp.sum(r.mask) for r in data)
+
+
 @eqx.filter_jit
-def polish_laws(model, kinds, sizes, Vinv, nu_start, scale, data, max_steps, tol):
-    """Levenberg-Marquardt on every law coefficient, on the stacked residuals of all conditions
-    (variables: node values `nu_start + scale * u`). Returns `(coef, total RMS [N], steps,
-    status code)` (see `mrjax.refine.lm_solve`)."""
-    x, xdot, dt, force, mask, cur = data
-
-    def coef_of(u):
-        return Vinv @ (nu_start + scale * u)
-
-    def fn(u, _):
-        th = LawSet(coef_of(u), kinds, sizes)(cur)
-        r = jax.vmap(lambda t, a, v, h, f, k: residuals(model, t, a, v, h, f, k))(
-            th, x, xdot, dt, force, mask)
-        return r.ravel()
-
-    sol = lm_solve(fn, jnp.zeros_like(nu_start), max_steps=max_steps, tol=tol)
-    coef = coef_of(sol.value)
-    return coef, total_rms(model, LawSet(coef, kinds, sizes), data), sol.steps, sol.status
+def total_rms_of(model, coding, nu, eta, data):
+    """Total RMS [N] over every scored sample of every record (`inf` if not finite)."""
+    return _rms(joint_residuals(model, coding, nu, eta, data), _n_scored(data))
 
 
-# ------------------------------------------------------------------------------ the joint stage
-@dataclasses.dataclass(frozen=True)
-class JointStart:
-    """The two-step solution the joint fit starts from and is never worse than.
+@eqx.filter_jit
+def polish_unknowns(model, coding, data, z0, lower, upper, max_steps, tol):
+    """Bounded Levenberg-Marquardt on the polish's variables (:meth:`Coding.from_bounded`),
+    stacked residuals of every record: the variables run in the MINUIT/lmfit map
+    $z = l + (h - l)(\\sin w + 1)/2$ of their box `[lower, upper]`, as the per-condition
+    polish (`mrjax.refine.polish`); a start on a bound is moved inside by `BOUND_NUDGE`.
+    Dynamic models materialise the Jacobian by forward mode (`lm_solve(jacobian="forward")`).
+    Returns `(z, total RMS [N], steps, status code)`."""
+    half = 0.5 * (upper - lower)
+    z0 = jnp.clip(z0, lower + BOUND_NUDGE * (upper - lower), upper - BOUND_NUDGE * (upper - lower))
+    w0 = jnp.arcsin(jnp.clip((z0 - lower) / jnp.where(half > 0, half, 1.0) - 1.0, -1.0, 1.0))
 
-    `theta` (C, P) per-condition parameters (z-scale normalised); `current` (C,) their
-    currents [A]; `levels` (U,) the distinct currents [A]; `layout`; `coef` two-step
-    coefficients; `rms` [N] their total RMS; `data` the joint objective's rows (see
-    :func:`joint_data`); `model_eval` the model with the
-    sub-steps the two-step RMS was scored with; `exp_cols` (P,) which laws are `"exp"`.
+    def to_z(w):
+        return lower + half * (jnp.sin(w) + 1.0)
+
+    def fn(w, args):
+        nu, eta = coding.from_bounded(to_z(w))
+        return joint_residuals(model, coding, nu, eta, args)
+
+    sol = lm_solve(fn, w0, data, max_steps=max_steps, tol=tol,
+                   jacobian="forward" if model.dynamic else "linearize")
+    z = to_z(sol.value)
+    nu, eta = coding.from_bounded(z)
+    return z, total_rms_of(model, coding, nu, eta, data), sol.steps, sol.status
+
+
+@eqx.filter_jit
+def law_uncertainty(model, coding, data, phi):
+    """Std-errors of every coefficient and of eta, and their identifiability, from the
+    Jacobian of the residuals with respect to the free node values and eta (in their units;
+    `mrjax.refine.jacobian_uncertainty`), mapped to the coefficients by the delta method.
+
+    **Returns:** `(stderr (V + 1,), identifiable (V + 1,), dof, sigma [N])`, the last entry
+    eta's."""
+    fit = coding.lag == "fit"
+    Q = len(coding.free)
+
+    def to_phi(psi):  # natural variables: node values and eta itself
+        return psi.at[Q].set(jnp.log(psi[Q])) if fit else psi
+
+    psi0 = phi.at[Q].set(jnp.exp(phi[Q])) if fit else phi
+
+    def res(psi):
+        nu, eta = coding.from_free(to_phi(psi))
+        return joint_residuals(model, coding, nu, eta, data)
+
+    r = res(psi0)
+    J = jax.jacfwd(res)(psi0)
+    se, cov, _, ident, dof, sigma = jacobian_uncertainty(r, J, _n_scored(data))
+
+    def outputs(psi):
+        nu, eta = coding.from_free(to_phi(psi))
+        return jnp.concatenate([coding.coefficients(nu), jnp.reshape(eta, (1,))])
+
+    H = jax.jacfwd(outputs)(psi0)  # (V + 1, Q')
+    dep = H != 0
+    known = jnp.isfinite(se)
+    cov0 = jnp.where(jnp.isfinite(cov), cov, 0.0)
+    var = jnp.einsum("ij,jk,ik->i", H, cov0, H)
+    undefined = jnp.any(dep & ~known[None, :], axis=1)
+    se_out = jnp.where(undefined, jnp.nan, jnp.sqrt(jnp.maximum(var, 0.0)))
+    ident_out = jnp.all(~dep | ident[None, :], axis=1)
+    return se_out, ident_out, dof, sigma
+
+
+def build_objective(
+    model: AbstractModel,
+    layout: Layout,
+    nu0: np.ndarray,
+    *,
+    eta0: float = 0.0,
+    lag: str = "none",
+    log_params: tuple[str, ...] = (),
+    z_scale: bool = False,
+    pair: bool = False,
+) -> JointObjective:
+    """The swarm objective (and coding) of laws `layout` of `model`.
+
+    **Arguments:** `nu0` (V,) node values where nothing else sets them; `eta0` [1/s] the lag
+    rate when `lag` is `"fixed"`; `lag` `"fit"`, `"fixed"` or `"none"`; `log_params` the
+    searched parameters whose node values the swarm searches as logarithms; `z_scale` fix the
+    redundant z-scale of a Bouc-Wen-type model by delta(u0) = beta(u0) + gamma(u0); `pair`
+    search constant beta, gamma as `(log delta, q = gamma / delta)` (needs `z_scale`).
+    """
+    names, kinds = model.param_names, layout.kinds
+    lin = list(model.linear_params)
+    n_fixed = len(model.fixed_params)
+    ls_params = [p for p, n in enumerate(names) if n in lin and kinds[p] == "poly"]
+    derived: tuple = ()
+    if z_scale:
+        pd, pb, pg = (names.index(k) for k in ("delta", "beta", "gamma"))
+        derived = (int(layout.block(pd)[0]), pd, pb, pg, float(layout.nodes[pd][0]))
+    pair_idx: tuple[int, ...] = ()
+    if pair:
+        pd, pb, pg = derived[1:4]
+        pair_idx = (int(layout.block(pb)[0]), int(layout.block(pg)[0]))
+    skip = set(pair_idx) | ({derived[0]} if derived else set())
+    direct, direct_log = [], []
+    for p, n in enumerate(names):
+        if p in ls_params:
+            continue
+        for k in layout.block(p):
+            if int(k) not in skip:
+                direct.append(int(k))
+                direct_log.append(n in log_params)
+    ls = [(lin.index(names[p]), m, int(layout.block(p)[m])) for p in ls_params
+          for m in range(layout.sizes[p])]
+    ls.sort(key=lambda e: e[0] >= n_fixed)  # parameter-free (basis) columns first
+    ls_idx = tuple(e[2] for e in ls)
+    V_ls = layout.V[np.ix_(ls_idx, ls_idx)] if ls_idx else np.zeros((0, 0))
+    exp_lin = tuple((lin.index(names[p]), p) for p, n in enumerate(names)
+                    if n in lin and kinds[p] == "exp")
+    free = tuple(int(k) for k in range(layout.n) if not derived or k != derived[0])
+    coding = Coding(jnp.asarray(nu0, float), jnp.asarray(layout.Vinv), jnp.asarray(eta0, float),
+                    kinds, layout.sizes, tuple(direct), tuple(direct_log), pair_idx, derived,
+                    free, lag, ls_idx)
+    return JointObjective(model, coding, jnp.asarray(V_ls), ls_idx,
+                          tuple((e[0], e[1]) for e in ls),
+                          sum(e[0] < n_fixed for e in ls), exp_lin)
+
+
+def bounded_box(model: AbstractModel, layout: Layout, coding: Coding, lower: np.ndarray,
+                upper: np.ndarray, lag_bounds: tuple[float, float] | None = None,
+                free_shape: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The box of the polish's variables (:meth:`Coding.bounded_of`): every node value of a
+    law within its parameter's bounds `lower`, `upper` (P,) (their logarithms for log-searched
+    nodes and `"exp"` laws), the Bouc-Wen shape as `(log delta, q)` in `DELTA_RANGE` x
+    `Q_RANGE` (or, with delta, beta, gamma not constant, beta and gamma node values in the box
+    those ranges allow, unless `free_shape` is False), `log eta` in `lag_bounds` [1/s]."""
+    names = model.param_names
+    lo_n, hi_n = np.zeros(layout.n), np.zeros(layout.n)
+    for p, n in enumerate(names):
+        b = layout.block(p)
+        a, c = float(lower[p]), float(upper[p])
+        if free_shape and model.name in Z_SCALE_MODELS and n in ("delta", "beta", "gamma"):
+            d_hi, q_hi = DELTA_RANGE[1], Q_RANGE[1]
+            a, c = {"delta": DELTA_RANGE, "beta": ((1.0 - q_hi) * d_hi, d_hi),
+                    "gamma": (0.0, q_hi * d_hi)}[n]
+        if layout.kinds[p] == "exp":
+            a, c = math.log(max(a, 1e-300)), math.log(c)
+        lo_n[b], hi_n[b] = a, c
+    lo, hi = [], []
+    for k, lg in zip(coding.direct, coding.direct_log):
+        a, c = lo_n[k], hi_n[k]
+        lo.append(math.log(max(a, LOG_FLOOR * c)) if lg else a)
+        hi.append(math.log(c) if lg else c)
+    if coding.pair:
+        lo += [math.log(DELTA_RANGE[0]), Q_RANGE[0]]
+        hi += [math.log(DELTA_RANGE[1]), Q_RANGE[1]]
+    if coding.lag == "fit":
+        a, c = lag_bounds
+        lo.append(math.log(a))
+        hi.append(math.log(c))
+    lo += [lo_n[k] for k in coding.ls]
+    hi += [hi_n[k] for k in coding.ls]
+    return np.asarray(lo, float), np.asarray(hi, float)
+
+
+# ------------------------------------------------------------------------------ the problem
+@dataclasses.dataclass(frozen=True, eq=False)
+class JointProblem:
+    """Everything :func:`joint_fit` needs, built by `generalize` or `identify`.
+
+    **Fields:** `model`; `layout`; `objective` the swarm's :class:`JointObjective` (its
+    `coding` also serves the polish); `lower`, `upper` (D,) the swarm's box; `lm_lower`,
+    `lm_upper` (D + K,) the polish's box (:meth:`Coding.bounded_of`: the swarm's coordinates,
+    then the least-squares node values); `full` the records; `view` their swarm views or
+    None; `levels` commands spanning the data (sub-step policy).
     """
 
-    theta: np.ndarray
-    current: np.ndarray
-    levels: np.ndarray
+    model: AbstractModel
     layout: Layout
+    objective: JointObjective
+    lower: np.ndarray
+    upper: np.ndarray
+    lm_lower: np.ndarray
+    lm_upper: np.ndarray
+    full: tuple[Rows, ...]
+    view: tuple[Rows, ...] | None
+    levels: np.ndarray
+
+    @property
+    def coding(self) -> Coding:
+        return self.objective.coding
+
+
+@dataclasses.dataclass(frozen=True)
+class JointOutcome:
+    """What :func:`joint_fit` found: `coef` (V,) law coefficients, `eta` the lag rate [1/s] (or
+    None without lag), `rms` total RMS [N] on the full records, `stderr` (V + 1,) and
+    `identifiable` (V + 1,) (last entry eta's; None without uncertainty), `sigma` [N], `dof`."""
+
     coef: np.ndarray
+    eta: float | None
     rms: float
-    data: tuple
-    model_eval: AbstractModel
-    exp_cols: np.ndarray
+    stderr: np.ndarray | None = None
+    identifiable: np.ndarray | None = None
+    sigma: float = float("nan")
+    dof: int = 0
 
 
-def _search_box(model: AbstractModel, start: JointStart):
-    """Node values of the two-step laws and the swarm's box around them: +-(3 x the scatter of
-    the per-condition values about the law + 25 % of the value), non-negative parameters kept
-    non-negative. Returns `(nu0, half, box_lo, box_hi)`, each (V,)."""
-    layout, kinds = start.layout, start.layout.kinds
-    nu0 = layout.V @ start.coef
-    law_rows = np.asarray(layout.lawset(start.coef)(jnp.asarray(start.current)))
-    dev = np.sqrt(np.mean((fit_space(start.theta, start.exp_cols)
-                           - fit_space(law_rows, start.exp_cols)) ** 2, axis=0))
-    lo_m, hi_m = model.bounds
-    half = np.zeros(layout.n)
-    box_lo, box_hi = np.zeros(layout.n), np.zeros(layout.n)
-    for p in range(model.n_params):
-        b = layout.block(p)
-        tiny = 1e-6 * (hi_m[p] - lo_m[p]) + 1e-9
-        h = 3.0 * dev[p] + 0.25 * np.abs(nu0[b]) + tiny
-        half[b] = h
-        box_lo[b], box_hi[b] = nu0[b] - h, nu0[b] + h
-        if kinds[p] == "poly" and lo_m[p] >= 0:
-            box_lo[b] = np.where(nu0[b] >= 0, np.maximum(box_lo[b], 0.0), box_lo[b])
-    return nu0, half, box_lo, box_hi
+def _resolved(problem: JointProblem, nu, eta, data: tuple[Rows, ...]) -> AbstractModel:
+    """The model with the polish's sub-step policy for the laws at `problem.levels` on
+    `data` (the stiffest level first: the step doubling integrates the first row)."""
+    model = problem.model
+    if not model.dynamic or model.substeps is not None:
+        return model
+    rows = np.asarray(problem.coding.lawset(jnp.asarray(nu))(jnp.asarray(problem.levels)))
+    xdot, dt, mask = flat_records(data)
+    vmax = float(np.max(np.abs(np.where(mask, xdot, 0.0)))) if mask.any() else 0.0
+    with np.errstate(all="ignore"):
+        rate = np.array([model.stiffness(r, vmax) if np.all(np.isfinite(r)) else -1.0
+                         for r in rows])
+    rows = rows[np.argsort(-np.nan_to_num(rate, nan=-1.0))]
+    rows = rows[np.all(np.isfinite(rows), axis=1)]
+    if rows.size == 0:
+        return model.with_substeps(1, "sdirk")
+    return resolve_model(model, rows, xdot, dt, mask)
 
 
-def _objective(model: AbstractModel, start: JointStart, batch: Batch, nu0, box_lo, box_hi):
-    """The swarm's objective over the node values of the searched laws (the laws of linear
-    "poly" parameters are solved exactly), and its box `(s_lo, s_hi)`."""
-    layout, kinds, names = start.layout, start.layout.kinds, model.param_names
-    lin = list(model.linear_params)
-    ls_params = [p for p, n in enumerate(names) if n in lin and kinds[p] == "poly"]
-    search_params = [p for p in range(len(names)) if p not in ls_params]
-    search_idx = tuple(int(k) for p in search_params for k in layout.block(p))
-    ls_idx = tuple(int(k) for p in ls_params for k in layout.block(p))
-    ls_cols = tuple((lin.index(names[p]), m_) for p in ls_params for m_ in range(layout.sizes[p]))
-    exp_lin = tuple((lin.index(names[p]), p) for p in search_params if names[p] in lin)
-    V_ls = layout.V[np.ix_(ls_idx, ls_idx)] if ls_idx else np.zeros((0, 0))
-    # the swarm's integration (see mrjax.models.resolve_model)
-    model_sw = model
-    if model.dynamic and model.substeps is None:
-        corners = [nu0]
-        for side in (box_lo, box_hi):
-            corners.append(np.where(np.isin(np.arange(layout.n), search_idx), side, nu0))
-        rows = np.concatenate([start.theta] + [np.asarray(layout.lawset(layout.Vinv @ c)(
-            jnp.asarray(start.levels))) for c in corners])
-        model_sw = resolve_model(model, rows, batch.xdot, batch.dt, batch.mask, swarm=True)
-    obj = JointObjective(model_sw, jnp.asarray(nu0), jnp.asarray(layout.Vinv), jnp.asarray(V_ls),
-                         search_idx, ls_idx, ls_cols, exp_lin, kinds, layout.sizes)
-    idx = list(search_idx)
-    return obj, box_lo[idx], box_hi[idx]
+def _swarm_stage(problem: JointProblem, key, n_particles, max_generations, pso_params,
+                 restarts, info):
+    """The swarm on the views (or the records): `(nu, eta, rms on the data it scored)`."""
+    obj = problem.objective
+    data = problem.view if problem.view is not None else problem.full
+    # the swarm's integration policy (one L-stable step per sample; no estimate needed)
+    model_sw = resolve_model(problem.model, problem.lower, None, None, swarm=True)
+    obj = eqx.tree_at(lambda o: o.model, obj, model_sw)
+    if obj.coding.n_position == 0:
+        nu, eta, rms = objective_at(obj, jnp.zeros((0,)), data)
+        info.update(swarm_generations=0, swarm_stopped_by_criterion=False)
+        return np.asarray(nu), float(eta), float(rms)
+    K = int(restarts)
+    rep = jax.tree.map(lambda a: jnp.broadcast_to(a[None], (K,) + a.shape), data)
+    sw = swarm(obj, problem.lower, problem.upper, rep, key=key,
+               params=pso_params or default_params("separable"), n_particles=n_particles,
+               max_generations=max_generations)
+    fit = np.asarray(sw.fitness, float)
+    best = int(np.argmin(np.where(np.isfinite(fit), fit, np.inf)))
+    info.update(swarm_generations=int(sw.generations[best]),
+                swarm_stopped_by_criterion=bool(sw.stopped_by_criterion[best]),
+                swarm_restarts=K)
+    nu, eta, rms = objective_at(obj, sw.position[best], data)
+    return np.asarray(nu), float(eta), float(rms)
 
 
-def joint_laws(
-    model: AbstractModel,
-    batch: Batch,
-    start: JointStart,
+def joint_fit(
+    problem: JointProblem,
     *,
     key: Any,
-    n_particles: int,
-    max_generations: int,
-    pso_params: PSOParams | None,
-    polish: bool,
-    polish_steps: int,
+    n_particles: int = 50,
+    max_generations: int = 200,
+    pso_params: PSOParams | None = None,
+    restarts: int = 1,
+    polish: bool = True,
+    polish_steps: int = 200,
+    tol: float = DEFAULT_TOL,
+    uncertainty: bool = True,
+    start: tuple[np.ndarray, float] | None = None,
+    swarm_stage: bool = True,
     info: dict[str, Any],
     timings: dict[str, float],
-) -> tuple[np.ndarray, float]:
-    """The joint stage: swarm over the node values of the searched laws, then (optionally)
-    Levenberg-Marquardt on every coefficient from the better of the swarm's best and the
-    two-step laws. Never worse than `start`. Fills `info` and `timings` [s].
-
-    **Returns:** `(coefficients (V,), total RMS [N])`.
-    """
+) -> JointOutcome:
+    """Swarm -> Levenberg-Marquardt (views, then full records) -> std-errors (see the module
+    notes). `start`: node values and lag rate to be never worse than (e.g. the two-step laws);
+    `swarm_stage=False` polishes `start` directly. Fills `info` and `timings` [s]."""
+    coding, full = problem.coding, problem.full
+    t0 = time.perf_counter()
+    cands = []
+    if swarm_stage:
+        nu_sw, eta_sw, rms_view = _swarm_stage(problem, key, n_particles, max_generations,
+                                               pso_params, restarts, info)
+        info["swarm_rms_N"] = rms_view  # on the data the swarm scored (the views)
+        cands.append(("swarm", nu_sw, eta_sw))
+    timings["swarm"] = time.perf_counter() - t0
+    if start is not None:
+        cands.append(("start", np.asarray(start[0], float), float(start[1])))
     t1 = time.perf_counter()
-    layout, data = start.layout, start.data
-    nu0, half, box_lo, box_hi = _search_box(model, start)
-    obj, s_lo, s_hi = _objective(model, start, batch, nu0, box_lo, box_hi)
-    if s_lo.size:
-        sw = swarm(obj, s_lo, s_hi, jax.tree.map(lambda a: a[None], data), key=key,
-                   params=pso_params or default_params("separable"), n_particles=n_particles,
-                   max_generations=max_generations)
-        pos = sw.position[0]
-        info.update(swarm_generations=int(sw.generations[0]),
-                    swarm_stopped_by_criterion=bool(sw.stopped_by_criterion[0]))
-    else:
-        pos = jnp.zeros((0,))
-        info.update(swarm_generations=0, swarm_stopped_by_criterion=False)
-    nu_sw = np.asarray(objective_at(obj, pos, data)[0])
-    coef_sw = layout.Vinv @ nu_sw
-    rms_sw = float(total_rms(start.model_eval, layout.lawset(coef_sw), data))
-    info["swarm_total_rms_N"] = rms_sw
-    timings["swarm"] = time.perf_counter() - t1
-    if np.isfinite(rms_sw) and rms_sw < start.rms:
-        nu_start, coef_best, rms_best, info["polish_start"] = nu_sw, coef_sw, rms_sw, "swarm"
-    else:
-        nu_start, coef_best, rms_best, info["polish_start"] = nu0, start.coef, start.rms, "two-step"
-    info.update(polish_steps=0, polish_status="none")
-    if polish:
-        t2 = time.perf_counter()
-        coef_best, rms_best = _polish(model, batch, start, nu_start, half, coef_best, rms_best,
-                                      polish_steps, info)
-        timings["polish"] = time.perf_counter() - t2
-    # the reported total RMS uses sub-steps resolved from the final laws
-    if model.dynamic and model.substeps is None:
-        rms_best = float(total_rms(_resolved(model, batch, start, coef_best),
-                                   layout.lawset(coef_best), data))
-    if not rms_best <= start.rms:  # never worse than the two-step laws (also catches NaN)
-        coef_best, rms_best = start.coef, start.rms
-        info["fell_back_to_two_step"] = True
-    return coef_best, rms_best
-
-
-def _resolved(model: AbstractModel, batch: Batch, start: JointStart, coef) -> AbstractModel:
-    """The model with sub-steps resolved from the per-condition fits and the laws `coef`."""
-    rows = np.asarray(start.layout.lawset(coef)(jnp.asarray(start.levels)))
-    return resolve_model(model, np.concatenate([start.theta, rows]), batch.xdot, batch.dt,
-                         batch.mask)
-
-
-def _polish(model, batch, start, nu_start, half, coef_best, rms_best, polish_steps, info):
-    """Levenberg-Marquardt on every coefficient from `nu_start`; kept only if not worse."""
-    layout = start.layout
-    model_lm = model
-    if model.dynamic and model.substeps is None:
-        model_lm = _resolved(model, batch, start, coef_best)
-    if model_lm.substeps != start.model_eval.substeps:
-        rms_best = float(total_rms(model_lm, layout.lawset(coef_best), start.data))
-    coef_lm, rms_lm, steps, code = polish_laws(
-        model_lm, layout.kinds, layout.sizes, jnp.asarray(layout.Vinv), jnp.asarray(nu_start),
-        jnp.asarray(half / 3.0), start.data, int(polish_steps), 1e-8)
-    coef_lm, rms_lm = np.asarray(coef_lm), float(rms_lm)
-    info.update(polish_steps=int(steps), polish_status=status_name(code))
-    if np.all(np.isfinite(coef_lm)) and math.isfinite(rms_lm) and rms_lm <= rms_best:
-        return coef_lm, rms_lm
-    info["polish_status"] = "kept_start"
-    return coef_best, rms_best
+    scored = []
+    for name, nu, eta in cands:  # every candidate on the full records, its own sub-steps
+        m = _resolved(problem, nu, eta, full)
+        scored.append((float(total_rms_of(m, coding, jnp.asarray(nu), eta, full)), name, nu,
+                       eta))
+    rms_best, name, nu_best, eta_best = min(scored, key=lambda s: (not np.isfinite(s[0]), s[0]))
+    info["start_rms_N"] = {s[1]: s[0] for s in scored}
+    info["polish_start"] = name
+    timings["score"] = time.perf_counter() - t1
+    info.update(polish_steps=[], polish_status=[])
+    if polish and coding.n_free:
+        lo_b, hi_b = np.asarray(problem.lm_lower, float), np.asarray(problem.lm_upper, float)
+        z = np.clip(coding.bounded_of(nu_best, eta_best), lo_b, hi_b)
+        nu_s, eta_s = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
+        stages = []
+        if problem.view is not None:
+            m_view = _resolved(problem, nu_s, float(eta_s), problem.view)
+            if not m_view.dynamic or m_view.scheme != "sdirk":
+                stages.append(("view", problem.view, tol, m_view))
+            else:
+                info["polish_view_skipped"] = (
+                    f"the views need the L-stable scheme ({m_view.substeps} sub-steps), "
+                    "whose Jacobian costs more to compile than the full records' polish saves")
+        full_tol = tol * (FULL_TOL_FACTOR if stages else 1.0)
+        stages.append(("full", full, full_tol, None))
+        for stage, data, stage_tol, m in stages:
+            t2 = time.perf_counter()
+            if m is None:
+                nu_s, eta_s = coding.from_bounded(jnp.asarray(z))
+                m = _resolved(problem, np.asarray(nu_s), float(eta_s), data)
+            z_new, rms_new, steps, code = polish_unknowns(
+                m, coding, data, jnp.asarray(z), jnp.asarray(lo_b), jnp.asarray(hi_b),
+                int(polish_steps), jnp.asarray(stage_tol, float))
+            z_new = np.asarray(z_new)
+            info["polish_steps"].append(int(steps))
+            info["polish_status"].append(status_name(code))
+            info[f"polish_{stage}_substeps"] = (m.substeps, m.scheme)
+            if np.all(np.isfinite(z_new)) and np.isfinite(float(rms_new)):
+                z = z_new
+            timings[f"polish_{stage}"] = time.perf_counter() - t2
+        nu_p, eta_p = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
+        m = _resolved(problem, nu_p, float(eta_p), full)
+        rms_p = float(total_rms_of(m, coding, jnp.asarray(nu_p), float(eta_p), full))
+        info["polish_rms_N"] = rms_p
+        if np.isfinite(rms_p) and rms_p <= rms_best:
+            rms_best, nu_best, eta_best = rms_p, nu_p, float(eta_p)
+        else:
+            info["polish_kept_start"] = True
+    nu_best = np.asarray(coding.complete(jnp.asarray(nu_best)))
+    coef = np.asarray(coding.coefficients(jnp.asarray(nu_best)))
+    out = JointOutcome(coef=coef, eta=float(eta_best) if coding.use_lag else None,
+                       rms=rms_best)
+    if uncertainty and coding.n_free:
+        t3 = time.perf_counter()
+        m = _resolved(problem, nu_best, eta_best, full)
+        se, ok, dof, sigma = law_uncertainty(m, coding, full,
+                                             jnp.asarray(coding.free_of(nu_best, eta_best)))
+        out = dataclasses.replace(out, stderr=np.asarray(se), identifiable=np.asarray(ok),
+                                  dof=int(dof), sigma=float(sigma))
+        timings["uncertainty"] = time.perf_counter() - t3
+    return out

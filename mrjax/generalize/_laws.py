@@ -31,9 +31,15 @@ DEFAULT_DEGREES: dict[str, dict[str, int]] = {
                           "gamma": 0, "n": 0, "f0": 0},
     "dahl": {"c": 1, "k": 1, "alpha": 2, "rho": 0, "f0": 1},
 }
-#: Relative eigenvalue floor of a per-condition correlation matrix below which its covariance
-#: counts as singular (the two-step "covariance" weighting then falls back to "equal").
-COV_EIG_FLOOR = 1e-12
+#: Default law degrees of a model commanded by a *voltage* (Spencer et al. 1997: c0, c1 and
+#: alpha linear in the filtered voltage u, every other parameter constant); models not listed
+#: use `DEFAULT_DEGREES` in volts as well.
+VOLTAGE_DEGREES: dict[str, dict[str, int]] = {
+    "modified_bouc_wen": {"c0": 1, "k0": 0, "c1": 1, "k1": 0, "alpha": 1, "delta": 0, "beta": 0,
+                          "gamma": 0, "n": 0, "f0": 0},
+}
+#: Units a law's argument (the command u) can have: coil current or command voltage.
+COMMAND_UNITS: tuple[str, ...] = ("A", "V")
 #: Row length of the packed samples of a static model's joint fit (see `_joint_data`).
 PACK_ROW = 1024
 
@@ -161,7 +167,8 @@ def lag_current(
     return u
 
 
-def default_degrees(model: str | AbstractModel, n_currents: int | None = None) -> dict[str, int]:
+def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *,
+                    unit: str = "A") -> dict[str, int]:
     """Default polynomial degree of each parameter's law.
 
     - `"kwok"`: the paper's (eq 24-29): c, k, delta, f0 linear; alpha quadratic; beta constant.
@@ -175,11 +182,20 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None) -
         parameters follow the current as well makes these strongly nonlinear models interpolate
         badly between measured currents (measured on the UTFSM data).
     - Any other model: degree 1, and 2 for `alpha`.
+    - With `unit="V"` (laws of a command voltage) the modified Bouc-Wen takes Spencer's 1997
+        voltage laws exactly: c0, c1 and alpha linear, every other parameter constant
+        (`VOLTAGE_DEGREES`); the other models keep the table above.
 
-    With `n_currents` given, degrees are capped at `n_currents - 1`.
+    With `n_currents` given (the number of distinct command levels), degrees are capped at
+    `n_currents - 1`.
     """
     model = get(model)
-    if model.name in DEFAULT_DEGREES and set(DEFAULT_DEGREES[model.name]) == set(
+    if unit not in COMMAND_UNITS:
+        raise InputError(f"command unit must be one of {list(COMMAND_UNITS)}, got {unit!r}")
+    if unit == "V" and model.name in VOLTAGE_DEGREES and set(
+            VOLTAGE_DEGREES[model.name]) == set(model.param_names):
+        deg = dict(VOLTAGE_DEGREES[model.name])
+    elif model.name in DEFAULT_DEGREES and set(DEFAULT_DEGREES[model.name]) == set(
             model.param_names):
         deg = dict(DEFAULT_DEGREES[model.name])
     else:

@@ -18,30 +18,105 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
+from .._io import json_safe
+from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch
 from ..fitting import as_batch
 from ..models import AbstractModel, get, resolve_model
 from ..objective import check_mask, masked_rms, nrmse
-from ._laws import Law, LawSet, lag_current
+from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
+
+#: Methods a :class:`GeneralizedModel` can come from: the paper's two-step generalization, the
+#: joint fit of the law coefficients (`generalize(method="joint")` and `identify`), or laws
+#: given by hand (e.g. a published set, :func:`spencer_1997`).
+METHODS: tuple[str, ...] = ("two-step", "joint", "given")
+
+
+class _ModelLag:
+    """Sentinel of `lag=`: use the model's own lag (`GeneralizedModel.lag`)."""
+
+    def __repr__(self) -> str:
+        return "MODEL_LAG"
+
+
+#: Default of every `lag=` argument: the lag the model was identified with (none for laws
+#: built from constant-current tests).
+MODEL_LAG = _ModelLag()
+
+
+@dataclasses.dataclass(frozen=True)
+class LawUncertainty:
+    """Linearised uncertainty of identified laws (see `mrjax.refine.jacobian_uncertainty`).
+
+    **Fields:**
+
+    - `stderr`: parameter name -> std-error of each law coefficient (ascending powers of u,
+        units of the coefficient); NaN where undefined.
+    - `identifiable`: parameter name -> per coefficient, False where the data do not determine
+        it (a numerically null direction of $J^T J$, or |corr| > 0.9999 with another unknown).
+    - `lag_stderr`: std-error of the lag rate $\\eta$ [1/s] (None when the lag was not fitted).
+    - `lag_identifiable`: whether $\\eta$ is determined (None when not fitted).
+    - `sigma`: residual standard deviation [N]; `dof`: scored samples minus unknowns.
+    - `fixed`: parameter name -> coefficients not estimated (e.g. the one the z-scale of
+        Bouc-Wen models fixes); their std-error is 0.
+    """
+
+    stderr: dict[str, tuple[float, ...]]
+    identifiable: dict[str, tuple[bool, ...]]
+    lag_stderr: float | None = None
+    lag_identifiable: bool | None = None
+    sigma: float = float("nan")
+    dof: int = 0
+    fixed: dict[str, tuple[bool, ...]] = dataclasses.field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The uncertainty entries of the `"generalized"` block of `fit.json`."""
+        return {"stderr": {n: list(v) for n, v in self.stderr.items()},
+                "identifiable": {n: list(v) for n, v in self.identifiable.items()},
+                "lag_stderr_1_s": self.lag_stderr, "lag_identifiable": self.lag_identifiable,
+                "sigma_N": self.sigma, "dof": int(self.dof)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> LawUncertainty | None:
+        """Inverse of :meth:`to_dict` (None when `d` holds no std-errors)."""
+        if not isinstance(d, Mapping) or not isinstance(d.get("stderr"), Mapping):
+            return None
+        nan = float("nan")
+        se = {n: tuple(nan if v is None else float(v) for v in vals)
+              for n, vals in d["stderr"].items()}
+        ok = {n: tuple(bool(v) for v in vals) for n, vals in (d.get("identifiable") or {}).items()}
+        lag_se = d.get("lag_stderr_1_s")
+        return cls(stderr=se, identifiable=ok,
+                   lag_stderr=None if lag_se is None else float(lag_se),
+                   lag_identifiable=d.get("lag_identifiable"),
+                   sigma=nan if d.get("sigma_N") is None else float(d["sigma_N"]),
+                   dof=int(d.get("dof") or 0))
 
 
 # ------------------------------------------------------------------------------ the result
 @dataclasses.dataclass(frozen=True, eq=False)
 class GeneralizedModel:
-    """A damper model whose parameters are laws of the coil current.
+    """A damper model whose parameters are laws of the command u: the coil current [A] or a
+    command voltage [V] (`command_unit`), optionally seen through a first-order lag.
 
     **Fields:**
 
     - `model`: the :class:`mrjax.models.AbstractModel`.
-    - `laws`: parameter name -> :class:`Law`, in `model.param_names` order.
-    - `method`: `"two-step"` or `"joint"`.
+    - `laws`: parameter name -> :class:`Law` of u, in `model.param_names` order.
+    - `method`: `"two-step"`, `"joint"` (also :func:`identify`) or `"given"`.
     - `total_rms`: RMS force error [N] over all scored samples of all conditions of the data it
         was built on.
-    - `current_range`: `(min, max)` current [A] of those data (the laws' range of validity).
+    - `current_range`: `(min, max)` of the command u of those data, in `command_unit` (the
+        laws' range of validity; also :attr:`command_range`).
     - `weighting`: how the two-step stage weighted the per-condition parameters
-        (`"covariance"` or `"equal"`; `""` when built from a dict).
+        (`"covariance"` or `"equal"`; `""` otherwise).
     - `support`: plotting data of the two-step stage (see :meth:`curves`), or None.
     - `info`: diagnostics (two-step total RMS, swarm and polish statistics, timings [s]).
+    - `command_unit`: `"A"` (laws of the coil current, default) or `"V"` (laws of a command
+        voltage: every coefficient of power m is per $V^m$).
+    - `lag`: $\\eta$ [1/s] of the command filter $\\dot u = -\\eta(u - v)$ the laws see (the
+        command v of a record is filtered before the laws are applied), or None for none.
+    - `uncertainty`: a :class:`LawUncertainty` of the coefficients and the lag, or None.
     """
 
     model: AbstractModel
@@ -52,6 +127,9 @@ class GeneralizedModel:
     weighting: str = ""
     support: dict[str, Any] | None = None
     info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    command_unit: str = "A"
+    lag: float | None = None
+    uncertainty: LawUncertainty | None = None
 
     def __post_init__(self):
         model = get(self.model)
@@ -70,9 +148,13 @@ class GeneralizedModel:
             laws[n] = law if isinstance(law, Law) else Law.from_dict(law, n)
         object.__setattr__(self, "laws", laws)
         method = str(self.method).replace("_", "-")
-        if method not in ("two-step", "joint"):
-            raise InputError(f"method must be 'two-step' or 'joint', got {self.method!r}")
+        if method not in METHODS:
+            raise InputError(f"method must be one of {list(METHODS)}, got {self.method!r}")
         object.__setattr__(self, "method", method)
+        if self.command_unit not in COMMAND_UNITS:
+            raise InputError(f"command_unit must be one of {list(COMMAND_UNITS)}, got "
+                             f"{self.command_unit!r}")
+        object.__setattr__(self, "lag", check_lag(self.lag))
         try:
             lo, hi = (float(v) for v in self.current_range)
         except (TypeError, ValueError):
@@ -84,6 +166,11 @@ class GeneralizedModel:
         object.__setattr__(self, "total_rms", float(self.total_rms))
 
     # ----------------------------------------------------------------------------- access
+    @property
+    def command_range(self) -> tuple[float, float]:
+        """`(min, max)` command of the data the laws were built on [`command_unit`]."""
+        return self.current_range
+
     @property
     def param_names(self) -> tuple[str, ...]:
         """Parameter names, in vector order."""
@@ -98,9 +185,36 @@ class GeneralizedModel:
                        tuple(len(law.coefficients) for law in laws))
 
     def params_at(self, current: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape P"]:
-        """Parameters (..., P) at `current` [A] of any shape (scalar, (C,), (T,), ...), SI
-        units, `param_names` order. Pure JAX: traceable and differentiable in `current`."""
+        """Parameters (..., P) at the command `current` (in `command_unit`, A or V) of any
+        shape (scalar, (C,), (T,), ...), SI units, `param_names` order. Pure JAX: traceable and
+        differentiable in `current`. No lag is applied (the value of u itself)."""
         return self._lawset(current)
+
+    def with_canonical_z(self, reference: float | None = None) -> GeneralizedModel:
+        """The same model with the z-scale of Bouc-Wen-type models normalised to
+        $|z|_{max} = (\\delta/(\\beta+\\gamma))^{1/n} = 1$ at the command `reference`
+        (default: the low end of `command_range`), the form :func:`identify` reports; other
+        models are returned unchanged. The force is unchanged where delta, beta, gamma and n
+        are constant (their default laws); the map is one global scale of z
+        (`canonical_z_scale`): alpha / s, delta * s, beta and gamma * s^(1 - n)."""
+        if self.model.name not in Z_SCALE_MODELS:
+            return self
+        u = self.current_range[0] if reference is None else float(reference)
+        th = np.asarray(self.params_at(u), float)
+        ix = self.param_names.index
+        d, b, g, n = (th[ix(k)] for k in ("delta", "beta", "gamma", "n"))
+        if not (d > 0 and b + g > 0 and n > 0):
+            return self
+        s_ = (d / (b + g)) ** (-1.0 / n)
+        scale = {"alpha": 1.0 / s_, "delta": s_, "beta": s_ ** (1.0 - n),
+                 "gamma": s_ ** (1.0 - n)}
+        laws = dict(self.laws)
+        for name, f in scale.items():
+            law = laws[name]
+            c = np.asarray(law.coefficients, float)
+            c = c * f if law.kind == "poly" else np.concatenate([[c[0] + np.log(f)], c[1:]])
+            laws[name] = Law(law.kind, c)
+        return dataclasses.replace(self, laws=laws, uncertainty=None)
 
     def coefficients(self, name: str) -> tuple[float, ...]:
         """Coefficients of parameter `name`'s law, ascending powers of i."""
@@ -129,19 +243,20 @@ class GeneralizedModel:
         dt: Float[ArrayLike, "*T"],
         current: Float[ArrayLike, "*T"],
         *,
-        lag: float | None = None,
+        lag: float | None | _ModelLag = MODEL_LAG,
     ) -> Float[Array, " T"]:
-        """Force [N] of one record at a constant or time-varying current.
+        """Force [N] of one record at a constant or time-varying command.
 
         **Arguments:**
 
         - `x` [m], `xdot` [m/s]: the record, (T,).
         - `dt`: sample interval [s], scalar or (T,) (the interval after each sample).
-        - `current`: coil current [A], scalar or per sample (T,).
-        - `lag`: $\\eta$ [1/s] of the first-order current lag $\\dot u = -\\eta(u - i)$
-            (:func:`lag_current`), or None for none.
+        - `current`: the command v in `command_unit` (coil current [A] or voltage [V]),
+            scalar or per sample (T,).
+        - `lag`: $\\eta$ [1/s] of the first-order command filter $\\dot u = -\\eta(u - v)$
+            (:func:`lag_current`, $u_0 = v_0$), None for none; default the model's own `lag`.
 
-        **Returns:** force (T,) [N]. A scalar current without lag uses one parameter vector;
+        **Returns:** force (T,) [N]. A scalar command without lag uses one parameter vector;
         otherwise the parameters are per sample (T, P).
         """
         x, xdot = jnp.asarray(x, float), jnp.asarray(xdot, float)
@@ -152,7 +267,7 @@ class GeneralizedModel:
         if cur.ndim not in (0, 1) or (cur.ndim == 1 and cur.shape != x.shape):
             raise InputError(f"current must be a scalar or have the shape of x {x.shape}, "
                              f"got {cur.shape}")
-        lag = check_lag(lag)
+        lag = self.lag if lag is MODEL_LAG else check_lag(lag)
         concrete = not any(isinstance(a, jax.core.Tracer) for a in (x, xdot, dt, cur))
         model = self._resolved(np.asarray(cur), np.asarray(xdot), np.asarray(dt)) if concrete \
             else self.model
@@ -162,12 +277,7 @@ class GeneralizedModel:
     def _batch_currents(self, batch: Batch, current) -> np.ndarray:
         C, T = batch.n_conditions, batch.length
         if current is None:
-            cur = np.asarray(batch.current, float)
-            bad = np.flatnonzero(~np.isfinite(cur))
-            if bad.size:
-                raise InputError(f"condition {batch.labels[bad[0]]!r} has no current; pass "
-                                 "current=")
-            return cur
+            return batch_command(batch, self.command_unit)
         cur = np.asarray(current, float)
         if cur.ndim == 0:
             cur = np.full(C, float(cur))
@@ -179,17 +289,24 @@ class GeneralizedModel:
         return cur
 
     def predict(
-        self, batch: Batch, *, current: ArrayLike | None = None, lag: float | None = None
+        self, batch: Batch, *, current: ArrayLike | None = None,
+        lag: float | None | _ModelLag = MODEL_LAG,
     ) -> np.ndarray:
         """Force [N] of every condition of `batch`, (C, T) NumPy (padding included).
 
         **Arguments:** `batch` any conditions (a `mrjax.data.Batch`, or what `mrjax.fit`
-        accepts); `current` [A]: None (each condition's own current), a scalar, (C,), or per
-        sample (C, T); `lag`: $\\eta$ [1/s] of the current lag (per-sample parameters).
+        accepts); `current`: the command in `command_unit`: None (each condition's own: its
+        per-sample command when it has one, replayed through the lag, else its constant
+        current [A]), a scalar, (C,), or per sample (C, T); `lag`: $\\eta$ [1/s] of the command
+        filter, None for none, default the model's own.
+
+        Raises :class:`mrjax.InputError` when a condition's command is in another unit than
+        the laws (a voltage record for laws of the current, or the reverse), or a condition
+        has neither a command nor, for laws of the current, a current.
         """
         batch = as_batch(batch)
         cur = self._batch_currents(batch, current)
-        lag = check_lag(lag)
+        lag = self.lag if lag is MODEL_LAG else check_lag(lag)
         model = self._resolved(cur, batch.xdot, batch.dt, batch.mask)
         per_sample = cur.ndim == 2 or lag is not None
         if cur.ndim == 1 and per_sample:
@@ -203,7 +320,7 @@ class GeneralizedModel:
         batch: Batch,
         *,
         current: ArrayLike | None = None,
-        lag: float | None = None,
+        lag: float | None | _ModelLag = MODEL_LAG,
         mask: ArrayLike | None = None,
     ) -> dict[str, Any]:
         """Score the model on `batch` (arguments as :meth:`predict`; `mask` (C, T) selects the
@@ -245,34 +362,55 @@ class GeneralizedModel:
     def summary(self) -> str:
         """One line per law, then the method and total RMS."""
         w = max(len(n) for n in self.param_names)
-        lines = [f"{n:>{w}} = {self.laws[n].formula()}  [{u}]"
-                 for n, u in zip(self.param_names, self.model.units)]
+        var = "v" if self.command_unit == "V" else "i"
+        unc = self.uncertainty
+        lines = []
+        for n, u in zip(self.param_names, self.model.units):
+            line = f"{n:>{w}} = {self.laws[n].formula(var)}  [{u}]"
+            if unc is not None and n in unc.stderr:
+                se = ", ".join(f"{v:.3g}" for v in unc.stderr[n])
+                bad = "" if all(unc.identifiable.get(n, (True,))) else "  (not identifiable)"
+                line += f"  std-err ({se}){bad}"
+            lines.append(line)
+        if self.lag is not None:
+            se = "" if unc is None or unc.lag_stderr is None else f" +- {unc.lag_stderr:.3g}"
+            lines.append(f"{'eta':>{w}} = {self.lag:.6g}{se}  [1/s]  (command filter "
+                         f"du/dt = -eta (u - {var}))")
         lo, hi = self.current_range
-        lines.append(f"{self.model.name} generalized ({self.method}), i in [{lo:g}, {hi:g}] A: "
-                     f"total RMS {self.total_rms:.4g} N")
+        lines.append(f"{self.model.name} generalized ({self.method}), {var} in [{lo:g}, {hi:g}] "
+                     f"{self.command_unit}: total RMS {self.total_rms:.4g} N")
         return "\n".join(lines)
 
     def __str__(self) -> str:
         return self.summary()
 
     def __repr__(self) -> str:
+        lag = "" if self.lag is None else f", lag={self.lag:.4g} 1/s"
         return (f"GeneralizedModel(model={self.model.name!r}, method={self.method!r}, "
-                f"total_rms={self.total_rms:.4g} N, laws={{"
+                f"unit={self.command_unit!r}{lag}, total_rms={self.total_rms:.4g} N, laws={{"
                 + ", ".join(f"{n}: {law.kind}{law.degree}" for n, law in self.laws.items())
                 + "})")
 
     def to_dict(self) -> dict[str, Any]:
         """The `"generalized"` block of `fit.json`."""
         total = self.total_rms if math.isfinite(self.total_rms) else None
-        return {
+        rng = [self.current_range[0], self.current_range[1]]
+        out = {
             "method": self.method,
             "model": self.model.name,
             "total_rms_N": total,
-            "current_range_A": [self.current_range[0], self.current_range[1]],
+            "current_range_A": rng if self.command_unit == "A" else None,
             "laws": {n: self.laws[n].to_dict() for n in self.param_names},
             "weighting": self.weighting or None,
             "units": {n: u for n, u in zip(self.param_names, self.model.units)},
+            "command_unit": self.command_unit,
+            "command_range": rng,
+            "lag_1_s": self.lag,
+            "lag_fitted": bool(self.info.get("lag_fitted", False)),
         }
+        if self.uncertainty is not None:
+            out.update(self.uncertainty.to_dict())
+        return json_safe(out)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> GeneralizedModel:
@@ -286,11 +424,16 @@ class GeneralizedModel:
             if k not in d:
                 raise InputError(f"generalized model block lacks {k!r}")
         total = d.get("total_rms_N")
-        rng = d.get("current_range_A") or [0.0, 0.0]
+        rng = d.get("command_range") or d.get("current_range_A") or [0.0, 0.0]
+        unit = d.get("command_unit") or "A"
+        lag = d.get("lag_1_s")
         return cls(model=get(d["model"]), laws=dict(d["laws"]),
                    method=d.get("method", "two-step"),
                    total_rms=float("nan") if total is None else float(total),
-                   current_range=tuple(rng), weighting=d.get("weighting") or "")
+                   current_range=tuple(rng), weighting=d.get("weighting") or "",
+                   command_unit=unit, lag=None if lag is None else float(lag),
+                   uncertainty=LawUncertainty.from_dict(d),
+                   info={"lag_fitted": bool(d.get("lag_fitted", False))})
 
     def to_json(self, **kw) -> str:
         """JSON text of :meth:`to_dict`."""
@@ -308,6 +451,32 @@ class GeneralizedModel:
         except json.JSONDecodeError as e:
             raise InputError(f"{path}: not valid JSON (line {e.lineno}: {e.msg})") from None
         return cls.from_dict(d)
+
+
+def batch_command(batch: Batch, unit: str) -> np.ndarray:
+    """The command u of every condition of `batch` for laws in `unit`: (C, T) per sample when
+    any condition carries a per-sample command (the others' constant current broadcast), else
+    (C,) constant currents [A].
+
+    Raises :class:`mrjax.InputError` naming the condition whose command is in another unit or
+    that has no command (and, for laws of the current, no current).
+    """
+    kind = np.asarray(batch.command_kind)
+    cur = np.asarray(batch.current, float)
+    for i in range(batch.n_conditions):
+        have = COMMAND_UNITS_BY_KIND[int(kind[i])]
+        if have is not None and have != unit:
+            what = {"A": "a current", "V": "a command voltage"}
+            raise InputError(f"condition {batch.labels[i]!r} carries {what[have]} [{have}] but "
+                             f"the laws are of {what[unit]} [{unit}]")
+        if have is None and (unit != "A" or not np.isfinite(cur[i])):
+            need = "a per-sample command voltage" if unit == "V" else "a current"
+            raise InputError(f"condition {batch.labels[i]!r} has no command: the laws need "
+                             f"{need} [{unit}] (pass current=)")
+    if not np.any(kind > 0):
+        return cur
+    cmd = np.asarray(batch.command, float)
+    return np.where(kind[:, None] > 0, cmd, cur[:, None])
 
 
 def check_lag(lag):

@@ -14,7 +14,12 @@ from ._laws import LAW_KINDS, default_degrees, fit_space, group_currents, vander
 COV_EIG_FLOOR = 1e-12
 
 
-def law_spec(model, degrees, laws, n_currents) -> tuple[tuple[str, ...], tuple[int, ...]]:
+def law_spec(model, degrees, laws, n_currents, unit: str = "A"
+             ) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """Law kinds and degrees per parameter from the user's `degrees` (dict or one int) and
+    `laws` (dict of kinds), the model's defaults for laws in `unit` (see `default_degrees`)
+    capped at `n_currents - 1` distinct command levels (`math.inf` for a time-varying command).
+    Raises :class:`mrjax.InputError` for unknown names, bad kinds or too high a degree."""
     names = model.param_names
     laws = {} if laws is None else dict(laws)
     if isinstance(degrees, int | np.integer):
@@ -28,7 +33,7 @@ def law_spec(model, degrees, laws, n_currents) -> tuple[tuple[str, ...], tuple[i
     for n, k in laws.items():
         if k not in LAW_KINDS:
             raise InputError(f"law of {n!r} must be one of {list(LAW_KINDS)}, got {k!r}")
-    dflt = default_degrees(model)
+    dflt = default_degrees(model, unit=unit)
     kinds, degs = [], []
     for n in names:
         kind = laws.get(n, "poly")
@@ -41,7 +46,7 @@ def law_spec(model, degrees, laws, n_currents) -> tuple[tuple[str, ...], tuple[i
                 raise InputError(f"degree {d} of {n!r} needs at least {d + 1} distinct currents; "
                                  f"the data have {n_currents}")
         else:
-            d = min(1 if kind == "exp" else dflt[n], n_currents - 1)
+            d = int(min(1 if kind == "exp" else dflt[n], n_currents - 1))
         kinds.append(kind)
         degs.append(d)
     return tuple(kinds), tuple(degs)

@@ -23,7 +23,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
-from ._integrate import SCHEMES
+from ._integrate import ODE, SCHEMES, integrate, integrate_step
 from ._substeps import TRACED_SUBSTEPS, choose_substeps, max_abs
 
 
@@ -211,6 +211,62 @@ class AbstractModel(eqx.Module):
         Z, b = self.hysteresis(theta, x, xdot, dt)
         return jnp.concatenate([self.basis(x, xdot), Z], axis=-1), b
 
+    # ----------------------------------------------------------------------------- state
+    def ode(self) -> ODE | None:
+        """The state equation of a dynamic model (:class:`mrjax.models.ODE`), None for a
+        static one. `hysteresis` integrates it over a record; :meth:`initial_state`,
+        :meth:`advance` and :meth:`force_at` step it one sample at a time."""
+        return None
+
+    def states(self, theta, x, xdot, dt) -> Array:
+        """The state at every sample (T, S) of a dynamic model on a record (arguments as
+        :meth:`force`), integrated as :meth:`integration` says."""
+        ode = self.ode()
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        m, scheme = self.integration(theta, xdot, dt)
+        return integrate(ode.rhs, ode.initial(x[0], xdot[0]), theta, x, xdot, dt, m,
+                         scheme=scheme, linearize=ode.linearize, box=ode.box, flow=ode.flow)
+
+    def initial_state(self, x0: ArrayLike, v0: ArrayLike) -> Array:
+        """The state (S,) at the first sample of a record starting at `x0` [m], `v0` [m/s]."""
+        return self.ode().initial(jnp.asarray(x0), jnp.asarray(v0))
+
+    def advance(self, state: ArrayLike, theta: ArrayLike, x0, x1, v0, v1, dt) -> Array:
+        """The state (S,) at the next sample from `state` (S,) at this one, parameters `theta`
+        (P,) held over the interval, the excitation going linearly from (`x0` [m], `v0` [m/s])
+        to (`x1`, `v1`) over `dt` [s]: one interval of the integration of `force`, with the
+        model's sub-steps and scheme (fix them with :meth:`with_substeps` or
+        `resolve_model`; otherwise `TRACED_SUBSTEPS` RK4 steps)."""
+        ode = self.ode()
+        m, scheme = self.integration(theta, jnp.stack([jnp.asarray(v0), jnp.asarray(v1)]), dt)
+        return integrate_step(ode.rhs, state, theta, x0, x1, v0, v1, dt, m, scheme=scheme,
+                              linearize=ode.linearize, box=ode.box, flow=ode.flow)
+
+    def force_at(self, theta: ArrayLike, state: ArrayLike, x: ArrayLike,
+                 xdot: ArrayLike) -> Array:
+        """Force [N] at one sample from its state (S,) (ignored by static models), parameters
+        `theta` (P,), displacement `x` [m] and velocity `xdot` [m/s]: what `force` gives at
+        that sample."""
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        F = self.basis(x[None], xdot[None])[0]
+        ode = self.ode()
+        if ode is None:
+            Z, b = self.hysteresis(theta, x[None], xdot[None], 1.0)
+            Z, b = Z[0], b[0]
+        else:
+            Z, b = ode.output(jnp.asarray(state), theta, x, xdot)
+        return self._combine(theta, F, Z, b)
+
+    def _combine(self, theta, F, Z, f):
+        """`f` plus the linear parameters times their regressors `F`, `Z` (the force)."""
+        names = self.param_names
+        for j, n in enumerate(self.fixed_params):
+            f = f + theta[..., names.index(n)] * F[..., j]
+        for j, n in enumerate(self.varying_params):
+            f = f + theta[..., names.index(n)] * Z[..., j]
+        return f
+
     def force(
         self,
         theta: Float[ArrayLike, "*T P"],
@@ -234,13 +290,7 @@ class AbstractModel(eqx.Module):
         theta = jnp.asarray(theta)
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         Z, f = self.hysteresis(theta, x, xdot, dt)
-        F = self.basis(x, xdot)
-        names = self.param_names
-        for j, n in enumerate(self.fixed_params):
-            f = f + theta[..., names.index(n)] * F[:, j]
-        for j, n in enumerate(self.varying_params):
-            f = f + theta[..., names.index(n)] * Z[:, j]
-        return f
+        return self._combine(theta, self.basis(x, xdot), Z, f)
 
 
 def split_theta(theta: Array, names: tuple[str, ...], *wanted: str) -> list[Array]:

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._base import AbstractModel, split_theta
-from ._integrate import integrate
+from ._integrate import ODE
 
 
 def bw_zdot_lin(z, u, delta, beta, gamma, n):
@@ -121,9 +121,7 @@ class BoucWen(AbstractModel):
         d, b, g, n = (float(theta[self.param_names.index(k)]) for k in ("delta", "beta", "gamma", "n"))
         return _bw_rate(d, b, g, n, vmax)
 
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+    def ode(self) -> ODE:
         names = self.param_names
 
         def shape(p):
@@ -140,10 +138,18 @@ class BoucWen(AbstractModel):
             zm = bw_zmax(*shape(p))
             return -zm, zm
 
-        m, scheme = self.integration(theta, xdot, dt)
-        z = integrate(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, m, scheme=scheme,
-                      linearize=lin, box=box)
-        return z, jnp.zeros_like(xdot)
+        def initial(x0, v0):
+            return jnp.zeros((1,), jnp.asarray(x0).dtype)
+
+        def output(states, theta, x, xdot):
+            return states, jnp.zeros_like(jnp.asarray(xdot))
+
+        return ODE(rhs=rhs, initial=initial, output=output, linearize=lin, box=box)
+
+    def hysteresis(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)
 
 
 class ModifiedBoucWen(AbstractModel):
@@ -202,9 +208,7 @@ class ModifiedBoucWen(AbstractModel):
         coupling = (abs(k0) + g_u * abs(alpha)) / max(abs(c0 + c1), 1e-12)
         return _bw_rate(d, b, g, n, vmax) + coupling
 
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+    def ode(self) -> ODE:
         names = self.param_names
 
         def ydot_of(state, xi, vi, p):
@@ -234,14 +238,24 @@ class ModifiedBoucWen(AbstractModel):
             inf = jnp.full_like(zm, jnp.inf)
             return jnp.stack([-inf, -zm]), jnp.stack([inf, zm])
 
-        m, scheme = self.integration(theta, xdot, dt)
-        y0 = jnp.stack([x[0], jnp.zeros((), x.dtype)])
-        states = integrate(rhs, y0, theta, x, xdot, dt, m, scheme=scheme, linearize=lin,
-                           box=box)
-        th = jnp.broadcast_to(theta, (x.shape[0], theta.shape[-1])) if theta.ndim == 1 else theta
-        yd = ydot_of(states.T, x, xdot, th)
-        (c1,) = split_theta(theta, names, "c1")
-        return jnp.zeros(xdot.shape + (0,), xdot.dtype), c1 * yd
+        def initial(x0, v0):
+            x0 = jnp.asarray(x0)
+            return jnp.stack([x0, jnp.zeros((), x0.dtype)])
+
+        def output(states, theta, x, xdot):
+            st = jnp.moveaxis(jnp.asarray(states), -1, 0)  # (S, ...)
+            th = jnp.broadcast_to(theta, st.shape[1:] + (theta.shape[-1],))
+            yd = ydot_of(st, x, xdot, th)
+            (c1,) = split_theta(th, names, "c1")
+            xdot = jnp.asarray(xdot)
+            return jnp.zeros(xdot.shape + (0,), xdot.dtype), c1 * yd
+
+        return ODE(rhs=rhs, initial=initial, output=output, linearize=lin, box=box)
+
+    def hysteresis(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)
 
 
 class Dahl(AbstractModel):
@@ -271,9 +285,7 @@ class Dahl(AbstractModel):
         # integrated by its exact update (`dahl_flow`): no stiffness limit, one step per sample
         return 0.0
 
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+    def ode(self) -> ODE:
         names = self.param_names
 
         def rhs(state, xi, vi, p):
@@ -284,6 +296,19 @@ class Dahl(AbstractModel):
             (rho,) = split_theta(p, names, "rho")
             return dahl_flow(state, rho, a[1], b[1], h)
 
+        def initial(x0, v0):
+            return jnp.zeros((1,), jnp.asarray(x0).dtype)
+
+        def output(states, theta, x, xdot):
+            return states, jnp.zeros_like(jnp.asarray(xdot))
+
+        return ODE(rhs=rhs, initial=initial, output=output, flow=flow)
+
+    def integration(self, theta, xdot, dt):
         # the exact update needs one step per sample whatever the stiffness
-        w = integrate(rhs, jnp.zeros((1,), x.dtype), theta, x, xdot, dt, 1, flow=flow)
-        return w, jnp.zeros_like(xdot)
+        return 1, "rk4"
+
+    def hysteresis(self, theta, x, xdot, dt):
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)

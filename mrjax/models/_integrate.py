@@ -39,6 +39,7 @@ import warnings
 
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -52,6 +53,25 @@ LIN = Callable[[Array, Array, Array, Array], tuple[Array, Array]]
 BOX = Callable[[Array], tuple[ArrayLike, ArrayLike]]
 #: `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: closed-form update over one step.
 FLOW = Callable[[Array, Array, tuple[Array, Array], tuple[Array, Array], Array], Array]
+
+class ODE(NamedTuple):
+    """The state equation of a dynamic model, as the integrator and its callers need it.
+
+    **Fields:** `rhs`, `linearize`, `box`, `flow` as for :func:`integrate` (the last three may
+    be None); `initial(x0, v0) -> y0` the state at the first sample from its displacement [m]
+    and velocity [m/s]; `output(states, theta, x, xdot) -> (Z, b)` the model's
+    parameter-dependent regressors `Z` (..., k) and force `b` (...) [N] from states (..., S)
+    and the parameters, displacement and velocity at the same samples (any leading shape;
+    `theta` (P,) or (..., P)).
+    """
+
+    rhs: Callable
+    initial: Callable
+    output: Callable
+    linearize: Callable | None = None
+    box: Callable | None = None
+    flow: Callable | None = None
+
 
 #: The schemes of :func:`integrate`.
 SCHEMES: tuple[str, ...] = ("rk4", "sdirk")
@@ -136,6 +156,66 @@ def _sdirk_step(lin: LIN, proj, p, x0, dx, v0, dv, h, m: int):
     return sub
 
 
+def _projector(box: BOX | None, p, dtype, S: int):
+    """Clip onto the box the state never leaves (identity without a box)."""
+    if box is None:
+        return lambda z: z
+    lo, hi = box(p)
+    lo = jnp.broadcast_to(jnp.asarray(lo, dtype), (S,))
+    hi = jnp.broadcast_to(jnp.asarray(hi, dtype), (S,))
+    return lambda z: jnp.clip(z, lo, hi)
+
+
+def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme: str):
+    """The state after one sample interval: `m` steps of `scheme` (or of `flow`)."""
+    dx, dv = x1 - x0, v1 - v0
+    h = h_all / m
+    if flow is not None:
+        def sub(j, y):
+            s0 = jnp.asarray(j, h.dtype) / m
+            s1 = s0 + 1.0 / m
+            return flow(y, p, (x0 + s0 * dx, v0 + s0 * dv), (x0 + s1 * dx, v0 + s1 * dv), h)
+    elif scheme == "rk4":
+        sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
+    else:
+        sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m)
+    if m <= 4:  # unrolled: static stage positions
+        for j in range(m):
+            y = sub(j, y)
+    else:
+        y = jax.lax.fori_loop(0, m, sub, y, unroll=4)
+    return y
+
+
+def integrate_step(
+    rhs: RHS,
+    y: Float[ArrayLike, " S"],
+    theta: Float[ArrayLike, " P"],
+    x0: Float[ArrayLike, ""],
+    x1: Float[ArrayLike, ""],
+    v0: Float[ArrayLike, ""],
+    v1: Float[ArrayLike, ""],
+    dt: Float[ArrayLike, ""],
+    substeps: int,
+    *,
+    scheme: str = "rk4",
+    linearize: LIN | None = None,
+    box: BOX | None = None,
+    flow: FLOW | None = None,
+) -> Float[Array, " S"]:
+    """One sample interval of :func:`integrate`: the state at the next sample from the state
+    `y` (S,) at this one, parameters `theta` (P,) held over the interval, the excitation going
+    linearly from `(x0, v0)` to `(x1, v1)` [m, m/s] over `dt` [s]. The same steps as
+    :func:`integrate` (arguments as there), for callers that choose the parameters of each
+    interval as they go (the inverse model, a closed loop)."""
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
+    y = jnp.asarray(y)
+    lin = linearize if linearize is not None else linearize_auto(rhs)
+    proj = _projector(box, theta, y.dtype, y.shape[0])
+    return _interval(rhs, lin, proj, flow, y, theta, x0, x1, v0, v1, dt, int(substeps), scheme)
+
+
 def integrate(
     rhs: RHS,
     y0: Float[ArrayLike, " S"],
@@ -189,35 +269,16 @@ def integrate(
     S = y0.shape[0]
 
     def projector(p):
-        if box is None:
-            return lambda z: z
-        lo, hi = box(p)
-        lo = jnp.broadcast_to(jnp.asarray(lo, y0.dtype), (S,))
-        hi = jnp.broadcast_to(jnp.asarray(hi, y0.dtype), (S,))
-        return lambda z: jnp.clip(z, lo, hi)
+        return _projector(box, p, y0.dtype, S)
 
-    proj_const = None if per_sample or scheme != "sdirk" else projector(theta)
+    stiff = scheme == "sdirk" and flow is None
+    proj_const = projector(theta) if stiff and not per_sample else None
 
     def interval(y, inp):
         x0, x1, v0, v1, h_all = inp[:5]
         p = inp[5] if per_sample else theta
-        dx, dv = x1 - x0, v1 - v0
-        h = h_all / m
-        if flow is not None:
-            def sub(j, y):
-                s0 = jnp.asarray(j, h.dtype) / m
-                s1 = s0 + 1.0 / m
-                return flow(y, p, (x0 + s0 * dx, v0 + s0 * dv), (x0 + s1 * dx, v0 + s1 * dv), h)
-        elif scheme == "rk4":
-            sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
-        else:
-            proj = proj_const if proj_const is not None else projector(p)
-            sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m)
-        if m <= 4:  # unrolled: static stage positions
-            for j in range(m):
-                y = sub(j, y)
-        else:
-            y = jax.lax.fori_loop(0, m, sub, y, unroll=4)
+        proj = proj_const if proj_const is not None else (projector(p) if stiff else None)
+        y = _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m, scheme)
         return y, y
 
     _, ys = jax.lax.scan(interval, y0, xs)

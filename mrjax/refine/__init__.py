@@ -45,4 +45,6 @@ from ._uncertainty import CORR_LIMIT as CORR_LIMIT
 from ._uncertainty import EIG_RTOL as EIG_RTOL
 from ._uncertainty import NULL_LOADING as NULL_LOADING
 from ._uncertainty import Uncertainty as Uncertainty
+from ._uncertainty import intervals as intervals
+from ._uncertainty import jacobian_uncertainty as jacobian_uncertainty
 from ._uncertainty import uncertainty as uncertainty

@@ -116,20 +116,27 @@ def intervals(theta, stderr, dof, level: float) -> np.ndarray:
 
 
 
-def uncertainty_one(model, free_idx, theta, x, xdot, dt, force, mask):
-    """Std-errors, covariance, correlation, identifiability, dof and sigma for one condition
-    (jittable); `free_idx` a static tuple of the free columns of `theta` (P,)."""
-    P = theta.shape[0]
-    idx = np.asarray(free_idx, int)
-    Pf = idx.size
+def jacobian_uncertainty(
+    r: Float[ArrayLike, " N"], J: Float[ArrayLike, "N Q"], n: Float[ArrayLike, ""]
+) -> tuple[Array, Array, Array, Array, Array, Array]:
+    """Linearised uncertainty of least-squares variables from their residuals and Jacobian.
 
-    def res(th_free):
-        th = theta.at[idx].set(th_free)
-        return residuals(model, th, x, xdot, dt, force, mask)
+    The one home of mrjax's covariance rule (per-condition fits and the joint laws of
+    `mrjax.generalize` both use it): $s^2 = \\mathrm{RSS}/(n - Q)$,
+    $\\mathrm{cov} = s^2 (J^T J)^{-1}$ on the column-scaled $J^T J$ (unit diagonal, `eigh`,
+    eigenvalues below `EIG_RTOL` times the largest treated as null); a variable loading on a
+    null direction (`NULL_LOADING`), with a zero or non-finite column, or with
+    |corr| > `CORR_LIMIT` to another is flagged not identifiable.
 
-    r = res(theta[idx])
-    J = jax.jacfwd(res)(theta[idx])  # (T, Pf), SI units
-    n = jnp.sum(mask)
+    **Arguments:** `r` (N,) residuals at the optimum [N] (zero on unscored samples); `J` (N, Q)
+    their Jacobian with respect to the Q variables (in the variables' units); `n` the number
+    of scored samples. Jittable.
+
+    **Returns:** `(stderr (Q,), cov (Q, Q), corr (Q, Q), identifiable (Q,), dof (), sigma ())`,
+    NaN where undefined (see :class:`Uncertainty`).
+    """
+    r, J = jnp.asarray(r), jnp.asarray(J)
+    Pf = J.shape[-1]
     dof = n - Pf
     finite = jnp.all(jnp.isfinite(r)) & jnp.all(jnp.isfinite(J))
     J = jnp.where(finite, J, 0.0)
@@ -156,12 +163,28 @@ def uncertainty_one(model, free_idx, theta, x, xdot, dt, force, mask):
     off = ~jnp.eye(Pf, dtype=bool)
     high = jnp.any(off & (jnp.abs(corr_f) > CORR_LIMIT), axis=1)
     ident_f = ~(undefined | high)
+    return se_f, cov_f, corr_f, ident_f, dof, jnp.sqrt(s2)
+
+
+def uncertainty_one(model, free_idx, theta, x, xdot, dt, force, mask):
+    """Std-errors, covariance, correlation, identifiability, dof and sigma for one condition
+    (jittable); `free_idx` a static tuple of the free columns of `theta` (P,)."""
+    P = theta.shape[0]
+    idx = np.asarray(free_idx, int)
+
+    def res(th_free):
+        th = theta.at[idx].set(th_free)
+        return residuals(model, th, x, xdot, dt, force, mask)
+
+    r = res(theta[idx])
+    J = jax.jacfwd(res)(theta[idx])  # (T, Pf), SI units
+    se_f, cov_f, corr_f, ident_f, dof, sigma = jacobian_uncertainty(r, J, jnp.sum(mask))
 
     cov = jnp.zeros((P, P)).at[jnp.ix_(idx, idx)].set(cov_f)
     corr = jnp.eye(P).at[jnp.ix_(idx, idx)].set(corr_f)
     stderr = jnp.zeros(P).at[idx].set(se_f)
     ident = jnp.ones(P, bool).at[idx].set(ident_f)
-    return stderr, cov, corr, ident, dof, jnp.sqrt(s2)
+    return stderr, cov, corr, ident, dof, sigma
 
 
 @eqx.filter_jit

@@ -12,6 +12,9 @@ png = rp.save_png_bytes(rp.plot_records(mrjax.data.load("tests/")))   # what was
 ```
 """
 
+from ._command import command_figures as command_figures
+from ._command import plot_command_record as plot_command_record
+from ._command import plot_laws_vs_command as plot_laws_vs_command
 from ._figures import plot_convergence as plot_convergence
 from ._figures import plot_data_loops as plot_data_loops
 from ._figures import plot_generations_vs_current as plot_generations_vs_current

@@ -1,0 +1,256 @@
+"""`identify`: a current- or voltage-dependent model identified directly from records whose
+command varies in time (the Spencer et al. 1997 workflow), sine tests at constant commands, or
+any mix of them."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+import jax
+import numpy as np
+from jaxtyping import ArrayLike
+
+from .._errors import InputError
+from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
+from ..data import Batch, Condition
+from ..fitting import as_batch
+from ..fitting import swarm_view as make_view
+from ..models import AbstractModel, check_bounds, get
+from ..objective import fit_mask
+from ..pso import PSOParams
+from ..refine import DEFAULT_TOL
+from ._generalize import _make, law_uncertainty_of
+from ._joint import (
+    LOG_FLOOR,
+    N_LEVELS,
+    JointProblem,
+    Layout,
+    bounded_box,
+    build_objective,
+    joint_fit,
+    make_rows,
+    packed_rows,
+)
+from ._laws import Z_SCALE_MODELS, group_currents, nodes
+from ._model import GeneralizedModel, batch_command
+from ._two_step import law_spec
+
+#: Default range of the command filter's rate eta [1/s] searched when the lag is fitted: time
+#: constants from 0.1 ms to 1 s (Spencer et al. 1997: 190 1/s; an RD-1005-3 responds in
+#: < 25 ms).
+LAG_BOUNDS: tuple[float, float] = (1.0, 1e4)
+#: Without `pso_params`, the swarm of a dynamic model runs at least this many generations
+#: (capped by `max_generations`) before the statistical stop may end it (window 25): on a
+#: random-command record the improvements come in bursts, and an early stop leaves the polish
+#: far from the optimum.
+MIN_GENERATIONS_DYNAMIC = 100
+Lag = Literal["fit"] | float | None
+
+
+def command_unit_of(batch: Batch) -> str:
+    """The unit of the command of every condition of `batch`: `"V"` when the records carry a
+    command voltage, else `"A"` (a measured or commanded current, or each condition's constant
+    current). Raises :class:`mrjax.InputError` for records in both units."""
+    kinds = np.asarray(batch.command_kind)
+    units = sorted({COMMAND_UNITS_BY_KIND[int(k)] for k in kinds if k > 0})
+    if len(units) > 1:
+        first = {u: batch.labels[int(np.flatnonzero(kinds == COMMAND_UNITS_BY_KIND.index(u))[0])]
+                 for u in units}
+        raise InputError(f"the records mix a current command (first: {first['A']!r}) and a "
+                         f"voltage command (first: {first['V']!r}); laws need one unit")
+    return units[0] if units else "A"
+
+
+def _lag_mode(lag: Any, varying: bool, info: dict[str, Any]) -> tuple[str, float]:
+    if lag is None or (isinstance(lag, str) and lag.lower() == "none"):
+        return "none", 0.0
+    if isinstance(lag, str):
+        if lag.lower() != "fit":
+            raise InputError(f"lag must be 'fit', a rate in 1/s or None, got {lag!r}")
+        if not varying:
+            info["lag_note"] = ("no record has a time-varying command: the lag has no effect "
+                                "and is not fitted")
+            return "none", 0.0
+        return "fit", 0.0
+    try:
+        v = float(lag)
+    except (TypeError, ValueError):
+        raise InputError(f"lag must be 'fit', a rate in 1/s or None, got {lag!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise InputError(f"lag (eta) must be a positive rate in 1/s, got {lag!r}")
+    return "fixed", v
+
+
+def _user_bounded(model: AbstractModel, bounds) -> set[str]:
+    if bounds is None:
+        return set()
+    out: set[str] = set()
+    for side in bounds:
+        if isinstance(side, Mapping):
+            out |= set(side)
+        elif side is not None:
+            out |= set(model.param_names)
+    return out
+
+
+def identify(
+    data: Batch | Condition | Sequence[Condition] | str | Sequence[str],
+    model: str | AbstractModel,
+    *,
+    degrees: Mapping[str, int] | int | None = None,
+    laws: Mapping[str, str] | None = None,
+    lag: Lag = "fit",
+    lag_bounds: tuple[float, float] = LAG_BOUNDS,
+    bounds: tuple[Any, Any] | None = None,
+    transient: float | str | None = None,
+    key: ArrayLike | None = None,
+    seed: int = 0,
+    n_particles: int = 50,
+    max_generations: int = 200,
+    pso_params: PSOParams | None = None,
+    restarts: int = 1,
+    polish: bool = True,
+    polish_steps: int = 200,
+    tol: float = DEFAULT_TOL,
+    uncertainty: bool = True,
+    swarm_view: bool | None = None,
+) -> GeneralizedModel:
+    """Identify a model whose parameters are laws of the command, from every record at once.
+
+    The records may be sine tests at constant currents or voltages and records whose current
+    or command voltage varies in time (a per-sample `command` of `mrjax.data.Condition`), from
+    one file or many. Each parameter is a :class:`Law` of the command u; a time-varying command
+    v reaches the laws through the first-order filter $\\dot u = -\\eta(u - v)$ (Spencer et al.
+    1997), with $\\eta$ fitted or fixed. The law coefficients (and $\\eta$) are found by the
+    joint fit of `mrjax.generalize` (swarm on the records' views with variable projection for
+    the linear parameters, Levenberg-Marquardt on the views then on the full records,
+    std-errors), scored on every sample of every record (an initial `transient` left out).
+
+    **Arguments:**
+
+    - `data`: a `mrjax.data.Batch`, condition(s) or file path(s). Every record needs a
+        command: a per-sample `command` (in A or V: one unit for all records) or, for laws of
+        the current, a constant `current`.
+    - `model`: a model name or object.
+    - `degrees`: parameter name -> polynomial degree of its law (or one int for all); the
+        others get :func:`default_degrees` for the command's unit (a voltage: Spencer's c0,
+        c1, alpha linear for the modified Bouc-Wen), capped by the distinct constant levels
+        when no command varies.
+    - `laws`: parameter name -> `"poly"` (default) or `"exp"`.
+    - `lag`: `"fit"` (default; $\\eta$ searched in `lag_bounds`), a rate [1/s] to fix it, or
+        None for no filter. Without a time-varying command the lag has no effect and is not
+        fitted.
+    - `lag_bounds`: `(low, high)` [1/s] of the fitted $\\eta$.
+    - `bounds`: `(lower, upper)` of the *parameters* (as `mrjax.fit`): each law's value at
+        every node of the command range is searched in it. Default the model's bounds, except
+        that a Bouc-Wen-type model's constant delta, beta, gamma are searched on the
+        |z|max = 1 scale as delta in `DELTA_RANGE` and q = gamma / delta in `Q_RANGE`.
+    - `transient`: drop an initial span of each record from the score: seconds, `"cycle"`
+        or None.
+    - `key`, `seed`: the swarm's PRNG key (default `jax.random.key(seed)`); same key, same
+        result.
+    - `n_particles`, `max_generations`, `pso_params`, `restarts`: swarm settings
+        (`restarts` independent swarms in one compiled program, the best polished; default
+        `pso_params`: window 25 and, for dynamic models, at least
+        `MIN_GENERATIONS_DYNAMIC` generations).
+    - `polish`, `polish_steps`, `tol`: the Levenberg-Marquardt stages (`mrjax.refine.lm_solve`;
+        views to `tol`, full records to 100 x `tol`).
+    - `uncertainty`: std-errors and identifiability of every coefficient and of $\\eta$.
+    - `swarm_view`: score the swarm and a first polish on the records' views
+        (`mrjax.fitting.swarm_view`); default: for the ODE models.
+
+    **Returns:** a :class:`GeneralizedModel` with `method="joint"`, `command_unit` `"A"` or
+    `"V"`, `lag` the rate [1/s] (None without a filter), `uncertainty`, and `info` (stage
+    timings [s], swarm and polish statistics, which redundancy was fixed). Bouc-Wen-type laws
+    are reported on the |z|max = 1 scale at the bottom of the command range.
+
+    Raises :class:`mrjax.InputError` for records without a command, commands in two units,
+    bad options, or too few scored samples.
+    """
+    t0 = time.perf_counter()
+    batch = as_batch(data)
+    model = get(model)
+    unit = command_unit_of(batch)
+    cmd = batch_command(batch, unit)
+    mask = np.asarray(fit_mask(batch, transient), bool)
+    info: dict[str, Any] = {"command_unit": unit}
+    n_scored = int(mask.sum())
+    if n_scored <= model.n_params:
+        raise InputError(f"{n_scored} scored samples are too few for model {model.name!r}")
+    if cmd.ndim == 2:
+        values = cmd[mask]
+        varying = bool(np.ptp(values) > 0) and any(
+            np.ptp(cmd[i][mask[i]]) > 0 for i in range(batch.n_conditions) if mask[i].any())
+    else:
+        values = np.repeat(cmd, mask.sum(axis=1))
+        varying = False
+    lo, hi = float(values.min()), float(values.max())
+    if varying:
+        n_levels = math.inf
+    else:
+        per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
+        n_levels = group_currents(per)[0].size
+    mode, eta0 = _lag_mode(lag, varying, info)
+    kinds, degs = law_spec(model, degrees, laws, n_levels, unit)
+    layout = Layout(kinds, tuple(d + 1 for d in degs), tuple(nodes(lo, hi, d + 1) for d in degs))
+    lo_b, hi_b = check_bounds(model, bounds)
+    lo_lag, hi_lag = _check_lag_bounds(lag_bounds)
+    user = _user_bounded(model, bounds)
+    names = model.param_names
+    z_scale = model.name in Z_SCALE_MODELS
+    shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
+    pair = z_scale and all(layout.sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix) \
+        and not (user & {"delta", "beta", "gamma"})
+    logs = tuple(n for p, n in enumerate(names)
+                 if kinds[p] == "poly" and lo_b[p] >= 0 and hi_b[p] > 0
+                 and hi_b[p] / max(lo_b[p], LOG_FLOOR * hi_b[p]) >= 100)
+    # where nothing else sets a node value (the linear laws' swarm placeholders): mid-box
+    nu0 = np.concatenate([np.full(layout.sizes[p], 0.5 * (lo_b[p] + hi_b[p]))
+                          for p in range(len(names))])
+    obj = build_objective(model, layout, nu0, eta0=eta0, lag=mode, log_params=logs,
+                          z_scale=z_scale, pair=pair)
+    coding = obj.coding
+    lm_lo, lm_hi = bounded_box(model, layout, coding, lo_b, hi_b, (lo_lag, hi_lag),
+                               free_shape=not (user & {"delta", "beta", "gamma"}))
+    D = coding.n_position
+    if z_scale:
+        info["z_scale"] = (f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "
+                           f"delta(u0) = beta(u0) + gamma(u0)")
+    full = packed_rows(batch, mask, cmd) if not model.dynamic and cmd.ndim == 1 else \
+        make_rows(batch, mask, cmd)
+    use_view = model.dynamic if swarm_view is None else bool(swarm_view)
+    view = None
+    if use_view:
+        v = make_view(batch, transient)
+        view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
+                         batch_command(v.batch, unit))
+    problem = JointProblem(model=model, layout=layout, objective=obj, lower=lm_lo[:D],
+                           upper=lm_hi[:D], lm_lower=lm_lo, lm_upper=lm_hi, full=full,
+                           view=view, levels=np.linspace(lo, hi, N_LEVELS))
+    if pso_params is None:
+        pso_params = PSOParams(window=25, min_generations=min(
+            MIN_GENERATIONS_DYNAMIC if model.dynamic else 0, int(max_generations)))
+    timings = {"prepare": time.perf_counter() - t0}
+    out = joint_fit(problem, key=jax.random.key(int(seed)) if key is None else key,
+                    n_particles=n_particles, max_generations=max_generations,
+                    pso_params=pso_params, restarts=restarts, polish=polish,
+                    polish_steps=polish_steps, tol=tol, uncertainty=uncertainty, info=info,
+                    timings=timings)
+    timings["total"] = time.perf_counter() - t0
+    info.update(timings=timings, lag_fitted=mode == "fit", lag_mode=mode)
+    return _make(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, info,
+                 command_unit=unit, lag=None if mode == "none" else out.eta,
+                 uncertainty=law_uncertainty_of(model, layout, out))
+
+
+def _check_lag_bounds(lag_bounds) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in lag_bounds)
+    except (TypeError, ValueError):
+        raise InputError(f"lag_bounds must be (low, high) in 1/s, got {lag_bounds!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b) and 0 < a < b):
+        raise InputError(f"lag_bounds must satisfy 0 < low < high, got {lag_bounds!r}")
+    return a, b
