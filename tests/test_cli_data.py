@@ -111,6 +111,8 @@ def test_fit_layout_end_to_end(layouts, layout, kind, tmp_path):
     want = estimated[kind == "spec"]
     assert all(sorted(c["estimated"]) == want for c in conds)
     assert "estimated, not read" in stderr
+    # (a)'s command voltage varies in time: fitted per test, with a warning
+    assert ("the command varies in time" in stderr) == (layout == "a")
     names = doc["param_names"]
     for c, i in zip(conds, TRUE_CURRENT[layout]):
         truth = dict(zip(names, mrjax.data.paper_parameters(i).tolist()))
@@ -374,8 +376,10 @@ def test_generalize_without_current_fails_before_fitting(layouts, tmp_path):
                              "--generalize", "two-step", "--out", tmp_path / "o"])
     assert code == 2 and stdout == "" and "fitting" not in err
     line = one_error_line(err)
-    assert "--generalize needs the current of every test" in line and "'random'" in line
-    assert "--current" in line and not (tmp_path / "o").exists()
+    # layout (a) has no current and a command voltage that varies in time: only the joint
+    # identification (laws of the command) can generalize it
+    assert "--generalize two-step needs --generalize joint" in line and "'random'" in line
+    assert "varies in time" in line and not (tmp_path / "o").exists()
 
 
 def test_data_options_in_help():

@@ -211,7 +211,6 @@ def test_cli_fit_and_predict_command(command_files, tmp_path, lag):
     (["--lag", "fast"], "--lag"),
     (["--generalize", "joint", "--degrees", "zz=1"], "zz"),
     (["--generalize", "two-step"], "joint"),
-    ([], "joint"),
 ])
 def test_cli_command_errors(command_files, tmp_path, argv, match):
     base = ["fit", command_files / "rand1.csv", "--model", "kwok", "--columns", COLUMNS,

@@ -431,7 +431,7 @@ def test_bad_input_cli(kind, build, needles, tmp_path):
 
 def test_key_count_must_match_conditions():
     keys = jax.random.split(jax.random.key(0), 3)
-    with pytest.raises(InputError, match="got 3 keys for 4 conditions"):
+    with pytest.raises(InputError, match="got 3 keys for 4 "):
         mrjax.fit("kwok", SMALL, key=keys, method="pso", generations=GENERATIONS)
 
 

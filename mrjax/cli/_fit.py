@@ -70,8 +70,17 @@ def run(args: argparse.Namespace) -> int:
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)
-    if _carries_command(batch):
+    varying = _varying_command(batch)
+    if args.generalize == "joint" and (varying or _voltage_command(batch)):
         return _run_identify(args, model, bounds, batch, out)
+    if varying and args.generalize:
+        raise InputError(f"--generalize {args.generalize} needs --generalize joint: "
+                         f"{len(varying)} record(s) carry a command that varies in time "
+                         f"(first: {varying[0]!r}); joint identifies laws of the command")
+    if varying:
+        say(f"warning: the command varies in time in {len(varying)} record(s) (first: "
+            f"{varying[0]!r}): a per-test fit averages over it; --generalize joint identifies "
+            "laws of the command")
     unknown = [lab for lab, i in zip(batch.labels, np.asarray(batch.current)) if np.isnan(i)]
     if args.generalize and unknown:  # fail before the fit, not after it
         raise InputError(f"--generalize needs the current of every test; it is unknown for "
@@ -111,17 +120,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _carries_command(batch) -> bool:
-    """Whether any record carries a command voltage or a current that varies in time: such
-    records are fitted by `mrjax.generalize.identify` (with `--generalize joint`)."""
+def _command_rows(batch) -> list[tuple[str, int, np.ndarray]]:
+    """(label, command kind, command over the fitted samples) of the records with a command."""
     kind = np.asarray(batch.command_kind)
-    if not np.any(kind > 0):
-        return False
     cmd = np.asarray(batch.command, float)
     mask = np.asarray(batch.mask, bool)
-    units = COMMAND_UNITS_BY_KIND
-    return any(units[int(k)] == "V" or np.ptp(c[m]) > 0
-               for k, c, m in zip(kind, cmd, mask) if k > 0 and m.any())
+    return [(lab, int(k), c[m]) for lab, k, c, m in zip(batch.labels, kind, cmd, mask)
+            if k > 0 and m.any()]
+
+
+def _varying_command(batch) -> list[str]:
+    """Labels of the records whose command (voltage or current) varies in time: a per-test
+    fit averages over it; `--generalize joint` identifies laws of the command
+    (`mrjax.generalize.identify`)."""
+    return [lab for lab, _, c in _command_rows(batch) if np.ptp(c) > 0]
+
+
+def _voltage_command(batch) -> bool:
+    """Whether a record carries a command voltage (laws in volts need `identify`)."""
+    return any(COMMAND_UNITS_BY_KIND[k] == "V" for _, k, _ in _command_rows(batch))
 
 
 def parse_lag(text: str) -> str | float | None:
@@ -176,11 +193,6 @@ def _run_identify(args, model, bounds, batch, out) -> int:
     """`mrjax fit` on records with a command voltage or a time-varying current: the laws of the
     command identified from every record at once (`mrjax.generalize.identify`)."""
     C = batch.n_conditions
-    if args.generalize != "joint":
-        raise InputError(
-            f"{'--generalize two-step needs' if args.generalize else 'these records need'} "
-            "--generalize joint: a record carries a command voltage or a current that varies "
-            "in time (fitted by `identify`, laws of the command with its lag)")
     if args.method != "pso+lm" or args.swarm != "separable":
         raise InputError("records with a time-varying command are fitted by the joint swarm "
                          "and polish: leave --method and --swarm at their defaults")

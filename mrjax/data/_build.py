@@ -1,7 +1,7 @@
 """From what a reader found in a file to checked SI conditions: the one path of every loader.
 
 Each file format has a reader (`_text.py`, `_csv.py`, `_mat.py`, `_frame.py`) that finds the
-columns a spec (or the file's own conventions) asks for and returns a :class:`_Read`: raw values
+columns a spec (or the file's own conventions) asks for and returns a :class:`ReadColumns`: raw values
 per column, the line of each row, notes on what it tolerated. :func:`assemble` then converts
 units, splits tests (a `condition` column, the wide layout), applies metadata, builds the time
 axis from a sample rate when there is no time column, estimates velocity, frequency and
@@ -31,7 +31,7 @@ from ._velocity import estimate_velocity, velocity_window
 
 
 @dataclasses.dataclass
-class _Read:
+class ReadColumns:
     """What a reader found: every column asked for, raw (in the file's units)."""
 
     where: str  # the file, for messages
@@ -52,7 +52,7 @@ def _label(base: str, parts: Sequence[str]) -> str:
     return "_".join([base, *parts]) if parts else base
 
 
-def _constant(read: _Read, col: Column, role: str, idx: np.ndarray, group: str | None,
+def _constant(read: ReadColumns, col: Column, role: str, idx: np.ndarray, group: str | None,
               strict: bool) -> float | None:
     """The value of a per-condition column (constant within the condition), in SI."""
     raw = read.values[col][idx]
@@ -70,12 +70,12 @@ def _constant(read: _Read, col: Column, role: str, idx: np.ndarray, group: str |
     return float(raw[0]) * check_unit(col.unit, ROLES[role], what=role, where=read.where)
 
 
-def _signal(read: _Read, col: Column, role: str, idx: np.ndarray) -> np.ndarray:
+def _signal(read: ReadColumns, col: Column, role: str, idx: np.ndarray) -> np.ndarray:
     return read.values[col][idx] * check_unit(col.unit, ROLES[role], what=role, where=read.where)
 
 
 def assemble(
-    read: _Read,
+    read: ReadColumns,
     *,
     meta: Meta,
     wide_meta: Sequence[Meta] = (),
@@ -134,7 +134,7 @@ def assemble(
     return out
 
 
-def _one(read: _Read, cols: Mapping[str, Column], idx: np.ndarray, key: str | None, meta: Meta,
+def _one(read: ReadColumns, cols: Mapping[str, Column], idx: np.ndarray, key: str | None, meta: Meta,
          fallback: Meta, label: str, source: str, window_s: float | None,
          strict: bool) -> Condition:
     notes = list(read.notes)

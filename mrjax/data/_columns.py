@@ -38,7 +38,7 @@ SIGNAL_ROLES: tuple[str, ...] = ("time", "displacement", "velocity", "force", "c
 #: Metadata keys (SI field of :class:`Meta`) and the quantity of their unit suffix.
 _META_QUANTITY = {"current": "current", "frequency": "frequency", "amplitude": "length",
                   "sample_rate": "frequency"}
-_META_SI = {"current": "A", "frequency": "Hz", "amplitude": "m", "sample_rate": "Hz"}
+META_SI = {"current": "A", "frequency": "Hz", "amplitude": "m", "sample_rate": "Hz"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -115,7 +115,7 @@ class Column:
         return self.source if self.unit is None else f"{self.source}:{self.unit}"
 
 
-def _checked_column(col: Column, role: str, where: str) -> Column:
+def checked_column(col: Column, role: str, where: str) -> Column:
     """The column with its unit checked against the role (a suffix unit made explicit)."""
     quantity = ROLES[role]
     if quantity is None:
@@ -169,11 +169,11 @@ class Meta:
             try:
                 v = float(v)
             except (TypeError, ValueError):
-                raise InputError(f"{name} must be a number [{_META_SI[name]}], got {v!r}") from None
+                raise InputError(f"{name} must be a number [{META_SI[name]}], got {v!r}") from None
             low_ok = v > 0 if name == "sample_rate" else v >= 0
             if not (math.isfinite(v) and low_ok):
                 what = "positive" if name == "sample_rate" else "non-negative"
-                raise InputError(f"{name} must be finite and {what}, got {v:g} {_META_SI[name]}")
+                raise InputError(f"{name} must be finite and {what}, got {v:g} {META_SI[name]}")
             object.__setattr__(self, name, v)
         if self.label is not None:
             object.__setattr__(self, "label", str(self.label))
@@ -190,7 +190,7 @@ class Meta:
         return all(getattr(self, f.name) is None for f in dataclasses.fields(Meta))
 
 
-def _meta_key(key: str, where: str) -> tuple[str, str | None]:
+def meta_key(key: str, where: str) -> tuple[str, str | None]:
     """`current_mA` -> ("current", "mA"); `label` -> ("label", None); `current` -> (.., None)."""
     if key == "label":
         return "label", None
@@ -221,11 +221,11 @@ def _meta_value(name: str, unit: str | None, value: Any, where: str, key: str) -
     return float(value) * check_unit(unit, quantity, what=key, where=where)
 
 
-def _meta_from_table(table: Mapping[str, Any], where: str, *, allow_rate: bool = True) -> Meta:
+def meta_from_table(table: Mapping[str, Any], where: str, *, allow_rate: bool = True) -> Meta:
     values: dict[str, Any] = {}
     given: dict[str, str] = {}
     for key, value in table.items():
-        name, unit = _meta_key(str(key), where)
+        name, unit = meta_key(str(key), where)
         if name == "sample_rate" and not allow_rate:
             raise InputError(f"{where}: {key} cannot vary per test; put it in [meta]")
         if name in given:
@@ -238,7 +238,7 @@ def _meta_from_table(table: Mapping[str, Any], where: str, *, allow_rate: bool =
         raise InputError(f"{where}: {e}") from None
 
 
-def _as_meta(value: Meta | Mapping[str, Any] | None, where: str) -> Meta:
+def as_meta(value: Meta | Mapping[str, Any] | None, where: str) -> Meta:
     if value is None:
         return Meta()
     if isinstance(value, Meta):
@@ -250,10 +250,10 @@ def _as_meta(value: Meta | Mapping[str, Any] | None, where: str) -> Meta:
                 return Meta(**value)
             except InputError as e:
                 raise InputError(f"{where}: {e}") from None
-        return _meta_from_table(value, where)
+        return meta_from_table(value, where)
     raise InputError(f"{where}: expected metadata (a Meta or a mapping), got {type(value).__name__}")
 
 
-def _check_role(role: str, where: str) -> None:
+def check_role(role: str, where: str) -> None:
     if role not in ROLES:
         raise InputError(f"{where}: unknown role {role!r}; roles: {', '.join(ROLES)}")

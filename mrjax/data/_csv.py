@@ -9,7 +9,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from .._errors import InputError
-from ._build import _Read, assemble
+from ._build import ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, stem
@@ -38,7 +38,7 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-def _conventional(header: list[str], src: str, strict: bool) -> dict[str, Column]:
+def conventional_columns(header: list[str], src: str, strict: bool) -> dict[str, Column]:
     """Columns named `<quantity>_<unit>` (and `condition`); strict: every column must be one,
     and time, displacement, force and current are required."""
     found: dict[str, Column] = {}
@@ -65,7 +65,7 @@ def _conventional(header: list[str], src: str, strict: bool) -> dict[str, Column
     return found
 
 
-def _index(header: list[str] | None, col: Column, role: str, src: str) -> int:
+def column_index(header: list[str] | None, col: Column, role: str, src: str) -> int:
     if col.index is not None and col.name is not None:
         raise InputError(
             f"{src}: {role} column {col.source!r}: 'name[k]' picks a column of a .mat variable; "
@@ -97,7 +97,7 @@ def read_csv(
     columns: Mapping[str, Column] | None,
     wide: Mapping[str, tuple[Column, ...]] | None = None,
     strict: bool,
-) -> _Read:
+) -> ReadColumns:
     """Read the columns of a CSV file: those given, or those named `<quantity>_<unit>`."""
     p = check_file(path)
     src = str(path)
@@ -136,9 +136,9 @@ def read_csv(
     if blank and not strict:
         notes.append(f"{blank} empty line(s) skipped")
     if columns is None:
-        columns = _conventional(header, src, strict)
+        columns = conventional_columns(header, src, strict)
         asked = list(columns.items()) + [(r, c) for r, cs in wide.items() for c in cs]
-    index = {c: _index(header, c, role, src) for role, c in asked}
+    index = {c: column_index(header, c, role, src) for role, c in asked}
     numeric = {c: j for c, j in index.items() if c.unit is not None}
     if not body:
         raise InputError(f"{src}: header only, no data rows")
@@ -194,7 +194,7 @@ def read_csv(
                 unused.append(repr(name))
         if unused:
             notes.append(f"column(s) {', '.join(unused)} not used")
-    return _Read(src, stem(path), len(cells), dict(columns), wide, values,
+    return ReadColumns(src, stem(path), len(cells), dict(columns), wide, values,
                  np.asarray(body_lines), notes)
 
 

@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import InputError
-from ._build import _Read, assemble
+from ._build import ReadColumns, assemble
 from ._columns import Column
 from ._condition import Batch, Condition
-from ._csv import _conventional, _index
+from ._csv import column_index, conventional_columns
 from ._spec import DataSpec
 
 if TYPE_CHECKING:
@@ -69,20 +69,20 @@ def from_frame(frame: pd.DataFrame, spec: DataSpec | None = None, *,
     if spec.columns or spec.wide:
         columns = dict(spec.columns)
     else:
-        columns = _conventional(header, name, strict=False)
+        columns = conventional_columns(header, name, strict=False)
     wide = dict(spec.wide)
     asked = list(columns.items()) + [(r, c) for r, cs in wide.items() for c in cs]
     values: dict[Column, np.ndarray] = {}
     for role, c in asked:
-        j = _index(header, c, role, name)
+        j = column_index(header, c, role, name)
         if c.unit is None:
             text = frame.iloc[:, j].astype(str).str.strip().to_numpy(dtype=object)
             values[c] = text
         else:
             values[c] = _numeric(frame, j, header[j], name)
-    unused = [h for h in header if h not in {header[_index(header, c, r, name)] for r, c in asked}]
+    unused = [h for h in header if h not in {header[column_index(header, c, r, name)] for r, c in asked}]
     notes = [f"column(s) {', '.join(map(repr, unused))} not used"] if unused else []
-    read = _Read(name, name, frame.shape[0], columns, wide, values, None, notes)
+    read = ReadColumns(name, name, frame.shape[0], columns, wide, values, None, notes)
     meta = spec.file_meta(name)
     return assemble(read, meta=meta, wide_meta=spec.wide_meta, window_s=spec.velocity_window,
                     strict=False)

@@ -31,7 +31,7 @@ from ._condition import Batch, Condition, make_batch
 from ._csv import load_csv, read_csv
 from ._files import PathLike, find_files, label_meta
 from ._mat import load_mat, read_mat
-from ._spec import DataSpec, _matches
+from ._spec import DataSpec, spec_matches
 from ._text import load_txt, read_text
 
 _LOADERS = {".csv": load_csv, ".txt": load_txt, ".dat": load_txt, ".mat": load_mat}
@@ -104,7 +104,7 @@ def load(
         for f in files:
             out += load_file(f, spec)
         for pattern in spec.files:
-            if not any(_matches(pattern, f) for f in files):
+            if not any(spec_matches(pattern, f) for f in files):
                 warnings.warn(f"{spec.origin or 'data spec'}: files entry {pattern!r} matches "
                               f"none of the {len(files)} file(s) loaded", RuntimeWarning,
                               stacklevel=2)

@@ -7,11 +7,11 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from .._errors import InputError
-from ._build import _Read, assemble
+from ._build import ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
-from ._text import _units_check
+from ._text import units_check
 from ._units import check_unit
 
 #: SI units, the default of :func:`load_mat`: time, displacement, velocity, force.
@@ -112,7 +112,7 @@ def read_mat(
     wide: Mapping[str, tuple[Column, ...]] | None = None,
     strict: bool,
     units: Sequence[str] = SI_UNITS,
-) -> _Read:
+) -> ReadColumns:
     """Read the columns of a `.mat` file: those given, or by convention variables `t`, `x`,
     `force` (and `xdot`; scalars `current`, `frequency`, `amplitude`) or the only matrix."""
     data, present = _load(path)
@@ -136,7 +136,7 @@ def read_mat(
     if not strict and (unused := [k for k in present if k not in used]):
         notes.append(f"variable(s) {', '.join(unused)} not used")
     n = next(iter(values.values())).shape[0]
-    return _Read(src, stem(path), n, dict(columns), wide, values, None, notes, file_meta)
+    return ReadColumns(src, stem(path), n, dict(columns), wide, values, None, notes, file_meta)
 
 
 def _conventional(data: Mapping, present: list[str], src: str,
@@ -250,7 +250,7 @@ def load_mat(
     present when one is missing.
     """
     src = str(path)
-    units = _units_check(units, src)
+    units = units_check(units, src)
     for name, u, q in zip(("time", "displacement", "velocity", "force"), units,
                           ("time", "length", "velocity", "force")):
         check_unit(u, q, what=name, where=src)

@@ -43,15 +43,15 @@ from typing import Any
 
 from .._errors import InputError
 from ._columns import (
-    _META_SI,
+    META_SI,
     ROLES,
     Column,
     Meta,
-    _as_meta,
-    _check_role,
-    _checked_column,
-    _meta_from_table,
-    _meta_key,
+    as_meta,
+    check_role,
+    checked_column,
+    meta_from_table,
+    meta_key,
 )
 from ._units import check_unit, parse_column, quantity_value
 
@@ -106,16 +106,16 @@ class DataSpec:
         where = self.origin or "data spec"
         cols = {}
         for role, col in dict(self.columns or {}).items():
-            _check_role(role, f"{where}: columns")
-            cols[role] = _checked_column(Column.parse(col, where=where), role, where)
+            check_role(role, f"{where}: columns")
+            cols[role] = checked_column(Column.parse(col, where=where), role, where)
         wide = {}
         for role, cs in dict(self.wide or {}).items():
-            _check_role(role, f"{where}: wide")
+            check_role(role, f"{where}: wide")
             if role == "condition":
                 raise InputError(f"{where}: wide: condition cannot vary per column")
             if isinstance(cs, (str, Column)) or not isinstance(cs, Sequence) or not cs:
                 raise InputError(f"{where}: wide {role} must be a non-empty list of columns")
-            wide[role] = tuple(_checked_column(Column.parse(c, where=where), role, where)
+            wide[role] = tuple(checked_column(Column.parse(c, where=where), role, where)
                                for c in cs)
             if role in cols:
                 raise InputError(f"{where}: role {role!r} given twice (in columns and in wide)")
@@ -128,8 +128,8 @@ class DataSpec:
             raise InputError(
                 f"{where}: give a per-sample current or a command column, not both"
             )
-        meta = _as_meta(self.meta, f"{where}: meta")
-        wide_meta = tuple(_as_meta(m, f"{where}: wide") for m in (self.wide_meta or ()))
+        meta = as_meta(self.meta, f"{where}: meta")
+        wide_meta = tuple(as_meta(m, f"{where}: wide") for m in (self.wide_meta or ()))
         if wide_meta:
             if not wide:
                 raise InputError(
@@ -144,7 +144,7 @@ class DataSpec:
                 )
             if any(m.sample_rate is not None for m in wide_meta):
                 raise InputError(f"{where}: sample_rate cannot vary per test; put it in meta")
-        files = {str(k): _as_meta(v, f"{where}: files {k!r}")
+        files = {str(k): as_meta(v, f"{where}: files {k!r}")
                  for k, v in dict(self.files or {}).items()}
         window = self.velocity_window
         if window is not None:
@@ -240,7 +240,7 @@ class DataSpec:
             return json.dumps(v) if isinstance(v, str) else repr(float(v))
 
         def meta_lines(m: Meta) -> list[str]:
-            return [f"{k}{'' if k == 'label' else '_' + _META_SI[k]} = {q(getattr(m, k))}"
+            return [f"{k}{'' if k == 'label' else '_' + META_SI[k]} = {q(getattr(m, k))}"
                     for k in ("label", "current", "frequency", "amplitude", "sample_rate")
                     if getattr(m, k) is not None]
 
@@ -258,7 +258,7 @@ class DataSpec:
                     if any(v is None for v in vals):
                         raise InputError(f"{self.origin or 'data spec'}: per-test {k} is missing "
                                          f"for some tests; a spec file needs all or none")
-                    key = k if k == "label" else f"{k}_{_META_SI[k]}"
+                    key = k if k == "label" else f"{k}_{META_SI[k]}"
                     out.append(f"{key} = [{', '.join(q(v) for v in vals)}]")
             out.append("")
         for pattern, m in self.files.items():
@@ -277,7 +277,7 @@ class DataSpec:
         """
         meta = self.meta
         for pattern, m in self.files.items():
-            if _matches(pattern, path):
+            if spec_matches(pattern, path):
                 meta = meta.merged(m)
         return meta
 
@@ -323,11 +323,11 @@ class DataSpec:
                 raise InputError(f"{where}: {key} must be a table ([{key}])")
         columns = {}
         for role, text in doc.get("columns", {}).items():
-            _check_role(role, f"{where}: [columns]")
+            check_role(role, f"{where}: [columns]")
             if not isinstance(text, (str, int)) or isinstance(text, bool):
                 raise InputError(f"{where}: [columns] {role} must be a string 'SOURCE:UNIT'")
             columns[role] = Column.parse(text, where=f"{where}: [columns] {role}")
-        meta = _meta_from_table(doc.get("meta", {}), f"{where}: [meta]")
+        meta = meta_from_table(doc.get("meta", {}), f"{where}: [meta]")
         wide: dict[str, list[Column]] = {}
         per_test: dict[str, tuple[str, list]] = {}
         for key, value in doc.get("wide", {}).items():
@@ -336,14 +336,14 @@ class DataSpec:
             if key in ROLES:
                 wide[key] = [Column.parse(v, where=f"{where}: [wide] {key}") for v in value]
             else:
-                _meta_key(key, f"{where}: [wide]")
+                meta_key(key, f"{where}: [wide]")
                 per_test[key] = value
         n = {len(v) for v in list(wide.values()) + list(per_test.values())}
         if len(n) > 1:
             sizes = ", ".join(f"{k}: {len(v)}" for k, v in {**wide, **per_test}.items())
             raise InputError(f"{where}: [wide] lists differ in length ({sizes})")
         wide_meta = tuple(
-            _meta_from_table({k: v[j] for k, v in per_test.items()}, f"{where}: [wide] test {j}",
+            meta_from_table({k: v[j] for k, v in per_test.items()}, f"{where}: [wide] test {j}",
                              allow_rate=False)
             for j in range(n.pop() if n and per_test else 0)
         )
@@ -351,7 +351,7 @@ class DataSpec:
         for pattern, table in doc.get("files", {}).items():
             if not isinstance(table, Mapping):
                 raise InputError(f"{where}: [files] {pattern!r} must be a table of metadata")
-            files[pattern] = _meta_from_table(table, f"{where}: [files.{pattern!r}]")
+            files[pattern] = meta_from_table(table, f"{where}: [files.{pattern!r}]")
         window = None
         vel = doc.get("velocity", {})
         for key, value in vel.items():
@@ -408,7 +408,7 @@ class DataSpec:
             items = _pairs(columns, "columns") if isinstance(columns, str) else list(
                 dict(columns).items())
             for role, text in items:
-                _check_role(role, "columns")
+                check_role(role, "columns")
                 if role in cols:
                     raise InputError(f"columns: role {role!r} given twice")
                 cols[role] = Column.parse(text, where=f"columns {role}")
@@ -425,7 +425,7 @@ class DataSpec:
             else:
                 items = list(dict(wide).items())
             for role, values in items:
-                _check_role(role, "wide")
+                check_role(role, "wide")
                 if role in wide_cols:
                     raise InputError(f"wide: role {role!r} given twice")
                 wide_cols[role] = _shared_unit(values, f"wide {role}")
@@ -522,7 +522,7 @@ def _names_unit(col: Column) -> bool:
         return False
 
 
-def _matches(pattern: str, path: PathLike) -> bool:
+def spec_matches(pattern: str, path: PathLike) -> bool:
     p = Path(path)
     names = {p.name, p.stem, str(path)}
     return any(fnmatch.fnmatchcase(n, pattern) for n in names)

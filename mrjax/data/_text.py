@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._build import _Read, assemble
+from ._build import ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
@@ -24,7 +24,7 @@ _SHORT = {"time": "t", "displacement": "x", "velocity": "xdot", "force": "force"
 _MAX_HEADER_LINES = 5
 
 
-def _units_check(units: Sequence[str], where: str) -> tuple[str, str, str, str]:
+def units_check(units: Sequence[str], where: str) -> tuple[str, str, str, str]:
     if isinstance(units, str) or len(units) != 4:
         raise InputError(
             f"{where}: units must be 4 units (time, displacement, velocity, force), "
@@ -138,7 +138,7 @@ def read_text(
     wide: Mapping[str, tuple[Column, ...]] | None = None,
     strict: bool,
     units: Sequence[str] = TXT_UNITS,
-) -> _Read:
+) -> ReadColumns:
     """Read the columns of a headerless text file: those given (bare column numbers), or by
     convention `t, x, F` / `t, x, xdot, F` in `units`."""
     p = check_file(path)
@@ -176,7 +176,7 @@ def read_text(
     unused = sorted(set(range(data.shape[1])) - {c.index for c in values})
     if unused and not strict:
         notes.append(f"column(s) {', '.join(map(str, unused))} not used")
-    return _Read(where, stem(path), data.shape[0], dict(columns), wide, values, lines, notes)
+    return ReadColumns(where, stem(path), data.shape[0], dict(columns), wide, values, lines, notes)
 
 
 def load_txt(
@@ -219,7 +219,7 @@ def load_txt(
     values that :class:`Condition` rejects.
     """
     where = str(path)
-    units = _units_check(units, where)
+    units = units_check(units, where)
     for name, u, q in zip(("time", "displacement", "velocity", "force"), units,
                           ("time", "length", "velocity", "force")):
         check_unit(u, q, what=name, where=where)

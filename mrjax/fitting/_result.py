@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import warnings
-
 import dataclasses
 import json
 import math
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any

@@ -255,7 +255,7 @@ def generalize(
     rng = (float(start.levels.min()), float(start.levels.max()))
     if method == "two-step":
         info["timings"] = timings
-        return _make(model, start.layout, start.coef, "two-step", start.rms, rng, used, support,
+        return make_generalized(model, start.layout, start.coef, "two-step", start.rms, rng, used, support,
                      info)
     use_view = model.dynamic if swarm_view is None else bool(swarm_view)
     problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view)
@@ -269,7 +269,7 @@ def generalize(
         info["fell_back_to_two_step"] = True
     timings["total"] = time.perf_counter() - t0
     info["timings"] = timings
-    return _make(model, start.layout, out.coef, "joint", out.rms, rng, used, support, info,
+    return make_generalized(model, start.layout, out.coef, "joint", out.rms, rng, used, support, info,
                  uncertainty=law_uncertainty_of(model, start.layout, out))
 
 
@@ -290,7 +290,7 @@ def law_uncertainty_of(model: AbstractModel, layout: Layout, out: JointOutcome
                           sigma=out.sigma, dof=out.dof)
 
 
-def _make(model: AbstractModel, layout: Layout, coef, method: str, rms: float, rng, weighting,
+def make_generalized(model: AbstractModel, layout: Layout, coef, method: str, rms: float, rng, weighting,
           support, info: dict[str, Any], **extra) -> GeneralizedModel:
     laws = {n: Law(layout.kinds[p], np.asarray(coef)[layout.block(p)])
             for p, n in enumerate(model.param_names)}

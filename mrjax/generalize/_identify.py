@@ -22,7 +22,7 @@ from ..models import AbstractModel, check_bounds, get
 from ..objective import fit_mask
 from ..pso import PSOParams
 from ..refine import DEFAULT_TOL
-from ._generalize import _make, law_uncertainty_of
+from ._generalize import law_uncertainty_of, make_generalized
 from ._joint import (
     LOG_FLOOR,
     N_LEVELS,
@@ -241,7 +241,7 @@ def identify(
                     timings=timings)
     timings["total"] = time.perf_counter() - t0
     info.update(timings=timings, lag_fitted=mode == "fit", lag_mode=mode)
-    return _make(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, info,
+    return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, info,
                  command_unit=unit, lag=None if mode == "none" else out.eta,
                  uncertainty=law_uncertainty_of(model, layout, out))
 

@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._errors import InputError
-from ._model import MODEL_LAG, GeneralizedModel, _ModelLag, check_lag
+from ._model import MODEL_LAG, GeneralizedModel, ModelLag, check_lag
 
 #: A desired force counts as out of reach where the closest admissible force misses it by more
 #: than this fraction of max |desired force| (default of `inverse`'s `atol`).
@@ -152,7 +152,7 @@ def inverse(
     *,
     dt: Float[ArrayLike, "*T"] | None = None,
     command_range: tuple[float, float] | None = None,
-    lag: float | None | _ModelLag = MODEL_LAG,
+    lag: float | None | ModelLag = MODEL_LAG,
     atol: float | None = None,
     n_grid: int = 64,
     iters: int = 40,
@@ -249,7 +249,7 @@ def inverse_current(
     dt: Float[ArrayLike, "*shape"] | None = None,
     n_grid: int = 64,
     iters: int = 40,
-    lag: float | None | _ModelLag = MODEL_LAG,
+    lag: float | None | ModelLag = MODEL_LAG,
 ) -> Float[Array, "*shape"]:
     """The command (current [A], or voltage [V] for laws of a voltage) that makes `gm` produce
     `force_desired`: :func:`inverse`'s `command` with the admissible range
@@ -322,7 +322,7 @@ def closed_loop(
     gain: float,
     control: str = "inverse",
     command_range: tuple[float, float] | None = None,
-    lag: float | None | _ModelLag = MODEL_LAG,
+    lag: float | None | ModelLag = MODEL_LAG,
     n_grid: int = 32,
     iters: int = 30,
 ) -> ClosedLoop:

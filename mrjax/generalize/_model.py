@@ -32,7 +32,7 @@ from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
 METHODS: tuple[str, ...] = ("two-step", "joint", "given")
 
 
-class _ModelLag:
+class ModelLag:
     """Sentinel of `lag=`: use the model's own lag (`GeneralizedModel.lag`)."""
 
     def __repr__(self) -> str:
@@ -41,7 +41,7 @@ class _ModelLag:
 
 #: Default of every `lag=` argument: the lag the model was identified with (none for laws
 #: built from constant-current tests).
-MODEL_LAG = _ModelLag()
+MODEL_LAG = ModelLag()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -243,7 +243,7 @@ class GeneralizedModel:
         dt: Float[ArrayLike, "*T"],
         current: Float[ArrayLike, "*T"],
         *,
-        lag: float | None | _ModelLag = MODEL_LAG,
+        lag: float | None | ModelLag = MODEL_LAG,
     ) -> Float[Array, " T"]:
         """Force [N] of one record at a constant or time-varying command.
 
@@ -290,7 +290,7 @@ class GeneralizedModel:
 
     def predict(
         self, batch: Batch, *, current: ArrayLike | None = None,
-        lag: float | None | _ModelLag = MODEL_LAG,
+        lag: float | None | ModelLag = MODEL_LAG,
     ) -> np.ndarray:
         """Force [N] of every condition of `batch`, (C, T) NumPy (padding included).
 
@@ -320,7 +320,7 @@ class GeneralizedModel:
         batch: Batch,
         *,
         current: ArrayLike | None = None,
-        lag: float | None | _ModelLag = MODEL_LAG,
+        lag: float | None | ModelLag = MODEL_LAG,
         mask: ArrayLike | None = None,
     ) -> dict[str, Any]:
         """Score the model on `batch` (arguments as :meth:`predict`; `mask` (C, T) selects the

@@ -35,9 +35,8 @@ values, which the fitness maps to `inf`.
 
 from __future__ import annotations
 
-import warnings
-
 import math
+import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 

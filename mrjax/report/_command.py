@@ -11,8 +11,8 @@ from matplotlib.figure import Figure
 
 from ..fitting import as_batch
 from ..generalize import GeneralizedModel, lag_current
-from ._figures import _FITTED, _MEASURED, _figure, _labels, _masked_rms, save_png_bytes
-from ._timeseries import _chosen, _zoom_span
+from ._figures import FITTED_COLOR, MEASURED_COLOR, labels_of, new_figure, rows_rms, save_png_bytes
+from ._timeseries import chosen_panels, zoom_span
 
 _REFERENCE = "#1f77b4"
 _COMMAND = "0.35"
@@ -55,21 +55,21 @@ def plot_command_record(
     dt_all = np.asarray(batch.dt, float)
     cmd_all = _commands(batch)
     C = F.shape[0]
-    idx = _chosen(C, max_panels)
-    labels = _labels(batch, C)
-    rms = _masked_rms(F, pred, mask)
+    idx = chosen_panels(C, max_panels)
+    labels = labels_of(batch, C)
+    rms = rows_rms(F, pred, mask)
     unit = gm.command_unit
-    fig = _figure(9.0, 3.4 * len(idx))
+    fig = new_figure(9.0, 3.4 * len(idx))
     axes = fig.subplots(2 * len(idx), 1, squeeze=False,
                         gridspec_kw={"height_ratios": [2, 1] * len(idx)})[:, 0]
     for r, i in enumerate(idx):
         m = mask[i]
         t, f = t_all[i, m], F[i, m]
-        lo, hi = _zoom_span(t, f, 2.0 if zoom is None else zoom)
+        lo, hi = zoom_span(t, f, 2.0 if zoom is None else zoom)
         w = (t >= lo) & (t <= hi)
         ax, axc = axes[2 * r], axes[2 * r + 1]
-        ax.plot(t[w], f[w], color=_MEASURED, lw=0.8, label="measured")
-        ax.plot(t[w], pred[i, m][w], color=_FITTED, lw=1.0,
+        ax.plot(t[w], f[w], color=MEASURED_COLOR, lw=0.8, label="measured")
+        ax.plot(t[w], pred[i, m][w], color=FITTED_COLOR, lw=1.0,
                 label=f"identified (RMS {rms[i]:.3g} N)")
         if ref is not None:
             rr = float(np.sqrt(np.mean((ref[i, m] - f) ** 2)))
@@ -82,7 +82,7 @@ def plot_command_record(
         axc.step(t[w], v[w], where="post", color=_COMMAND, lw=0.8, label=f"command v [{unit}]")
         if gm.lag is not None and np.all(np.isfinite(v)):
             u = np.asarray(lag_current(v, dt_all[i, m], gm.lag))
-            axc.plot(t[w], u[w], color=_FITTED, lw=1.0,
+            axc.plot(t[w], u[w], color=FITTED_COLOR, lw=1.0,
                      label=f"filtered u (eta = {gm.lag:.4g} 1/s)")
         axc.set_ylabel(f"[{unit}]")
         axc.set_xlabel("time [s]")
@@ -111,16 +111,16 @@ def plot_laws_vs_command(
         refv = np.asarray(reference.with_canonical_z().params_at(u), float)
     cols = min(P, 4)
     rows = -(-P // cols)
-    fig = _figure(2.6 * cols, 2.1 * rows)
+    fig = new_figure(2.6 * cols, 2.1 * rows)
     axes = fig.subplots(rows, cols, squeeze=False).ravel()
     unc = gm.uncertainty
     for p, (name, un) in enumerate(zip(names, units)):
         ax = axes[p]
-        ax.plot(u, vals[:, p], color=_FITTED, lw=1.2, label="identified")
+        ax.plot(u, vals[:, p], color=FITTED_COLOR, lw=1.2, label="identified")
         se = None if unc is None else unc.stderr.get(name)
         if se is not None and np.all(np.isfinite(se)) and gm.laws[name].kind == "poly":
             s = np.sqrt(sum((np.asarray(se[k]) * u ** k) ** 2 for k in range(len(se))))
-            ax.fill_between(u, vals[:, p] - 2 * s, vals[:, p] + 2 * s, color=_FITTED,
+            ax.fill_between(u, vals[:, p] - 2 * s, vals[:, p] + 2 * s, color=FITTED_COLOR,
                             alpha=0.2, lw=0)
         if refv is not None:
             ax.plot(u, refv[:, p], color=_REFERENCE, lw=1.0, ls="--", label="reference")

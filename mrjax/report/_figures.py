@@ -16,6 +16,8 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.cm import ScalarMappable
@@ -24,9 +26,11 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter
 
+from ..objective import masked_rms
+
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h", "p")
-_MEASURED = "0.55"
-_FITTED = "#d62728"
+MEASURED_COLOR = "0.55"
+FITTED_COLOR = "#d62728"
 _CMAP = "viridis"
 
 
@@ -45,7 +49,7 @@ def save_png_bytes(fig: Figure, *, dpi: int = 130) -> bytes:
     return buf.getvalue()
 
 
-def _figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
     return Figure(figsize=(width, height), layout="constrained")
 
 
@@ -56,7 +60,7 @@ def _arr(obj: Any, name: str, n: int) -> np.ndarray:
     return np.asarray(v, dtype=float).reshape(-1)
 
 
-def _labels(obj: Any, n: int) -> list[str]:
+def labels_of(obj: Any, n: int) -> list[str]:
     labels = getattr(obj, "labels", None)
     return [str(s) for s in labels] if labels is not None else [f"#{i}" for i in range(n)]
 
@@ -109,7 +113,7 @@ def _current_colors(current: np.ndarray):
     return [cycle(i % 10) for i in range(current.size)], None
 
 
-def _velocity_scale(v: np.ndarray) -> tuple[float, str]:
+def velocity_scale(v: np.ndarray) -> tuple[float, str]:
     vmax = float(np.nanmax(np.abs(v))) if v.size else 0.0
     return (1.0, "m/s") if vmax >= 1.0 else (1e3, "mm/s")
 
@@ -136,9 +140,11 @@ def _as_results(results: Any) -> dict[str, Any]:
     return out
 
 
-def _masked_rms(force: np.ndarray, pred: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    err = np.where(mask, force - pred, 0.0)
-    return np.sqrt(np.sum(err**2, axis=1) / np.maximum(mask.sum(axis=1), 1))
+def rows_rms(force: np.ndarray, pred: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """RMS error [N] of each row (C, T) over its masked samples: `mrjax.objective.masked_rms`
+    per row (inf for a row without samples or with a non-finite prediction)."""
+    return np.asarray(jax.vmap(masked_rms)(jnp.asarray(pred), jnp.asarray(force),
+                                           jnp.asarray(mask, bool)), float)
 
 
 def _no_data(fig: Figure, ax, text: str) -> Figure:
@@ -212,14 +218,14 @@ def plot_loops_grid(
     C = F.shape[0]
     if pred.shape != F.shape:
         raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
-    vs, vunit = _velocity_scale(np.asarray(batch.xdot)[mask])
+    vs, vunit = velocity_scale(np.asarray(batch.xdot)[mask])
     v = np.asarray(batch.xdot, dtype=float) * vs
     if rms is None:
         r = getattr(result, "rms", None)
         rms = (np.asarray(r, float) if r is not None and np.size(r) == C
-               else _masked_rms(F, pred, mask))
+               else rows_rms(F, pred, mask))
     rms = np.asarray(rms, float)
-    labels = _labels(batch, C)
+    labels = labels_of(batch, C)
     cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
                       ("current", "frequency", "amplitude"))
 
@@ -240,8 +246,8 @@ def plot_loops_grid(
         m = np.flatnonzero(mask[i])
         m = m[:: max(1, m.size // 2000)]  # a few thousand points are plenty at this size
         for ax, xx in ((ax_x, x[i, m]), (ax_v, v[i, m])):
-            ax.plot(xx, F[i, m], color=_MEASURED, lw=0.7)
-            ax.plot(xx, pred[i, m], color=_FITTED, lw=0.9)
+            ax.plot(xx, F[i, m], color=MEASURED_COLOR, lw=0.7)
+            ax.plot(xx, pred[i, m], color=FITTED_COLOR, lw=0.9)
             _small(ax, 5.5)
         if (r + 1, c) not in occupied:
             ax_x.set_xlabel("x [mm]", fontsize=6.5, labelpad=1)
@@ -259,7 +265,7 @@ def plot_loops_grid(
     if row_titles is not None:
         head += "   (rows: motion, columns: current)"
     fig.suptitle(head, fontsize=10, x=0.5 / W, ha="left", y=1 - 0.12 / H, va="top")
-    fig.legend([Line2D([], [], color=_MEASURED, lw=1.2), Line2D([], [], color=_FITTED, lw=1.2)],
+    fig.legend([Line2D([], [], color=MEASURED_COLOR, lw=1.2), Line2D([], [], color=FITTED_COLOR, lw=1.2)],
                ["measured", "model"], loc="upper right", bbox_to_anchor=(1 - 0.1 / W, 1 - 0.04 / H),
                fontsize=7.5, ncols=2, frameon=False)
     return fig
@@ -280,11 +286,11 @@ def plot_data_loops(batch: Any, *, motion: tuple[float, float] | None = None) ->
     F = np.asarray(batch.force, float)
     x = np.asarray(batch.x, float) * 1e3
     mask = np.asarray(batch.mask, bool)
-    vs, vunit = _velocity_scale(np.asarray(batch.xdot)[mask])
+    vs, vunit = velocity_scale(np.asarray(batch.xdot)[mask])
     v = np.asarray(batch.xdot, float) * vs
     cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
                       ("current", "frequency", "amplitude"))
-    labels = _labels(batch, F.shape[0])
+    labels = labels_of(batch, F.shape[0])
     motions = _motions(freq, amp)
     if motion is not None:
         want = (float(motion[0]), float(motion[1]))
@@ -297,7 +303,7 @@ def plot_data_loops(batch: Any, *, motion: tuple[float, float] | None = None) ->
 
     nblk = min(3, len(motions))
     nrows = math.ceil(len(motions) / nblk)
-    fig = _figure(max(7.0, 5.6 * nblk) + 0.6, 0.8 + 2.9 * nrows)
+    fig = new_figure(max(7.0, 5.6 * nblk) + 0.6, 0.8 + 2.9 * nrows)
     axes = fig.subplots(nrows, 2 * nblk, squeeze=False)
     for k, m in enumerate(motions):
         r, c = divmod(k, nblk)
@@ -403,7 +409,7 @@ def plot_rms_vs_current(results: Any, *, logy: bool = False) -> Figure:
     **Returns:** the figure.
     """
     results = _as_results(results)
-    fig = _figure(7.0, 4.4)
+    fig = new_figure(7.0, 4.4)
     ax = fig.subplots()
     xlabel, handles = _scatter_vs_current(ax, results, lambda r: _arr(r, "rms", _n(r)))
     ax.set_xlabel(xlabel)
@@ -435,7 +441,7 @@ def plot_generations_vs_current(results: Any) -> Figure:
     results = _as_results(results)
     swarm = {k: r for k, r in results.items()
              if np.any(np.asarray(getattr(r, "generations", [-1])) >= 0)}
-    fig = _figure(7.0, 4.4)
+    fig = new_figure(7.0, 4.4)
     ax = fig.subplots()
     ax.set_title("Generations to termination vs current")
     if not swarm:
@@ -506,7 +512,7 @@ def plot_params_vs_current(result: Any, *, laws: Any = None, ncols: int = 3) -> 
 
     ncols = max(1, min(int(ncols), P))
     nrows = math.ceil(P / ncols)
-    fig = _figure(3.4 * ncols + 1.6, 2.6 * nrows + 0.6)
+    fig = new_figure(3.4 * ncols + 1.6, 2.6 * nrows + 0.6)
     axes = fig.subplots(nrows, ncols, squeeze=False)
     for p in range(P):
         ax = axes[p // ncols][p % ncols]
@@ -552,7 +558,7 @@ def plot_convergence(result: Any, *, logy: bool = True) -> Figure:
     **Returns:** the figure.
     """
     hist = np.asarray(result.history, float)
-    fig = _figure(7.5, 4.6)
+    fig = new_figure(7.5, 4.6)
     ax = fig.subplots()
     ax.set_title("Swarm convergence: group-best RMS per condition")
     if hist.ndim != 2 or hist.shape[1] == 0:
@@ -597,8 +603,8 @@ def plot_pso_vs_polish(result: Any) -> Figure:
     rms = np.asarray(result.rms, float)
     pso = np.asarray(result.pso_rms, float)
     C = rms.size
-    labels = _labels(result, C)
-    fig = _figure(max(6.0, min(16.0, 2.5 + 0.24 * C)), 4.4)
+    labels = labels_of(result, C)
+    fig = new_figure(max(6.0, min(16.0, 2.5 + 0.24 * C)), 4.4)
     ax = fig.subplots()
     ax.set_title("Swarm alone vs after the Levenberg-Marquardt polish")
     if not np.any(np.isfinite(pso)):

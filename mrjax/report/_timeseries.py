@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ._figures import _FITTED, _MEASURED, _labels, _masked_rms, _velocity_scale
+from ._figures import FITTED_COLOR, MEASURED_COLOR, labels_of, rows_rms, velocity_scale
 
 #: Most points drawn per line: longer signals are reduced to their min/max envelope.
 _MAX_POINTS = 4000
@@ -43,7 +43,7 @@ def _envelope(t: np.ndarray, y: np.ndarray, n_max: int = _MAX_POINTS) -> tuple[n
     return t[idx], y[idx]
 
 
-def _chosen(C: int, max_panels: int) -> list[int]:
+def chosen_panels(C: int, max_panels: int) -> list[int]:
     """At most `max_panels` condition indices, evenly spread over `C`."""
     max_panels = max(1, int(max_panels))
     if C <= max_panels:
@@ -51,7 +51,7 @@ def _chosen(C: int, max_panels: int) -> list[int]:
     return sorted(set(np.linspace(0, C - 1, max_panels).round().astype(int).tolist()))
 
 
-def _zoom_span(t: np.ndarray, f: np.ndarray, zoom: float | tuple[float, float] | None,
+def zoom_span(t: np.ndarray, f: np.ndarray, zoom: float | tuple[float, float] | None,
                ) -> tuple[float, float]:
     """The zoomed time span [s] of one record (see :func:`plot_force_time`)."""
     if isinstance(zoom, (tuple, list)):
@@ -113,10 +113,10 @@ def plot_force_time(
     if rms is None:
         r = getattr(result, "rms", None)
         rms = (np.asarray(r, float) if r is not None and np.size(r) == C
-               else _masked_rms(F, pred, mask))
+               else rows_rms(F, pred, mask))
     rms = np.asarray(rms, float)
-    labels = _labels(batch, C)
-    idx = _chosen(C, max_panels)
+    labels = labels_of(batch, C)
+    idx = chosen_panels(C, max_panels)
 
     W, row_h = 11.0, 2.5
     H = 0.75 + row_h * len(idx)
@@ -128,14 +128,14 @@ def plot_force_time(
         n = int(mask[i].sum())
         t, f, p = t_all[i, :n], F[i, :n], pred[i, :n]
         res = f - p
-        lo, hi = _zoom_span(t, f, zoom)
+        lo, hi = zoom_span(t, f, zoom)
         inside = (t >= lo) & (t <= hi)
         for col, sel in ((0, slice(None)), (1, inside)):
             sg = gs[row, col].subgridspec(2, 1, height_ratios=(3, 1), hspace=0.08)
             ax_f = fig.add_subplot(sg[0])
             ax_r = fig.add_subplot(sg[1], sharex=ax_f)
             ts = t[sel]
-            for ax, y, color, lw in ((ax_f, f[sel], _MEASURED, 0.7), (ax_f, p[sel], _FITTED, 0.8),
+            for ax, y, color, lw in ((ax_f, f[sel], MEASURED_COLOR, 0.7), (ax_f, p[sel], FITTED_COLOR, 0.8),
                                      (ax_r, res[sel], _RESIDUAL, 0.6)):
                 ax.plot(*_envelope(ts, y), color=color, lw=lw)
             ax_r.axhline(0.0, color="0.3", lw=0.5)
@@ -163,7 +163,7 @@ def plot_force_time(
     if len(idx) < C:
         head += f" ({len(idx)} of {C} conditions shown)"
     fig.suptitle(head, fontsize=10, x=0.75 / W, ha="left", y=1 - 0.12 / H, va="top")
-    fig.legend([Line2D([], [], color=_MEASURED, lw=1.2), Line2D([], [], color=_FITTED, lw=1.2),
+    fig.legend([Line2D([], [], color=MEASURED_COLOR, lw=1.2), Line2D([], [], color=FITTED_COLOR, lw=1.2),
                 Line2D([], [], color=_RESIDUAL, lw=1.2)],
                ["measured", "model", "residual (measured - model)"], loc="upper right",
                bbox_to_anchor=(1 - 0.15 / W, 1 - 0.04 / H), fontsize=7.5, ncols=3,
@@ -192,9 +192,9 @@ def plot_records(data: Any, *, max_panels: int = 12, title: str | None = None) -
     if not conds:
         raise ValueError("no conditions to plot")
     C = len(conds)
-    idx = _chosen(C, max_panels)
+    idx = chosen_panels(C, max_panels)
     has_cmd = any(conds[i].command is not None for i in idx)
-    vs, vunit = _velocity_scale(np.concatenate([conds[i].xdot for i in idx]))
+    vs, vunit = velocity_scale(np.concatenate([conds[i].xdot for i in idx]))
     cols = ["displacement [mm]", f"velocity [{vunit}]", "force [N]"]
     if has_cmd:
         cols.append("command")
