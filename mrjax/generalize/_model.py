@@ -359,8 +359,28 @@ class GeneralizedModel:
         return out
 
     # ----------------------------------------------------------------------------- text, I/O
+    def loosely_determined(self, rel: float = 0.025) -> dict[str, tuple[bool, ...]]:
+        """Which law coefficients the data determine only loosely: std-error above `rel`
+        (dimensionless, default 2.5 %) of the coefficient's magnitude, so that two std-errors
+        exceed 5 % (for an `"exp"` law, whose coefficients act on the logarithm, std-error
+        above `rel` itself). Unlike `uncertainty.identifiable` (a null direction or a
+        near-perfect correlation), this names the coefficients a record pins down only to
+        several percent. Empty without an uncertainty."""
+        unc = self.uncertainty
+        if unc is None:
+            return {}
+        out = {}
+        for n, se in unc.stderr.items():
+            law = self.laws[n]
+            ref = (np.ones(len(law.coefficients)) if law.kind == "exp"
+                   else np.abs(np.asarray(law.coefficients, float)))
+            s = np.asarray(se, float)
+            out[n] = tuple(bool(not np.isfinite(a) or a > rel * r) for a, r in zip(s, ref))
+        return out
+
     def summary(self) -> str:
-        """One line per law, then the method and total RMS."""
+        """One line per law, then the method and total RMS. `*` marks a loosely determined
+        coefficient (:meth:`loosely_determined`: std-error above 2.5 % of it)."""
         w = max(len(n) for n in self.param_names)
         var = "v" if self.command_unit == "V" else "i"
         unc = self.uncertainty
@@ -368,7 +388,9 @@ class GeneralizedModel:
         for n, u in zip(self.param_names, self.model.units):
             line = f"{n:>{w}} = {self.laws[n].formula(var)}  [{u}]"
             if unc is not None and n in unc.stderr:
-                se = ", ".join(f"{v:.3g}" for v in unc.stderr[n])
+                loose = self.loosely_determined().get(n, ())
+                se = ", ".join(f"{v:.3g}{'*' if k < len(loose) and loose[k] else ''}"
+                               for k, v in enumerate(unc.stderr[n]))
                 bad = "" if all(unc.identifiable.get(n, (True,))) else "  (not identifiable)"
                 line += f"  std-err ({se}){bad}"
             lines.append(line)
@@ -379,6 +401,8 @@ class GeneralizedModel:
         lo, hi = self.current_range
         lines.append(f"{self.model.name} generalized ({self.method}), {var} in [{lo:g}, {hi:g}] "
                      f"{self.command_unit}: total RMS {self.total_rms:.4g} N")
+        if any(any(v) for v in self.loosely_determined().values()):
+            lines.append("* loosely determined: std-error above 2.5 % of the coefficient")
         return "\n".join(lines)
 
     def __str__(self) -> str:
