@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._errors import InputError
+from ..models import integrate_step
 from ._model import MODEL_LAG, GeneralizedModel, ModelLag, check_lag
 
 #: A desired force counts as out of reach where the closest admissible force misses it by more
@@ -210,7 +211,7 @@ def inverse(
     lo_j, hi_j = jnp.asarray(lo, float), jnp.asarray(hi, float)
     if not gm.model.dynamic and eta is None:  # pointwise, any shape, jittable
         shape = x.shape
-        u, f = _static_core(gm.model, gm._lawset, x.ravel(), xdot.ravel(), fd.ravel(), lo_j,
+        u, f = _static_core(gm.model, gm.lawset, x.ravel(), xdot.ravel(), fd.ravel(), lo_j,
                             hi_j, int(n_grid), int(iters))
         u, f = u.reshape(shape), f.reshape(shape)
         return _result(u, u, f, fd, tol, lo_j, hi_j)
@@ -222,9 +223,9 @@ def inverse(
     if dt is None:
         raise InputError("dt (the sample interval in s) is needed by a dynamic model or a lag")
     dt_a = jnp.broadcast_to(jnp.asarray(dt, float), x.shape)
-    model = gm._resolved(np.linspace(float(lo), float(hi), 9), np.asarray(xdot),
+    model = gm.resolved_model(np.linspace(float(lo), float(hi), 9), np.asarray(xdot),
                          np.asarray(dt_a))
-    cmd, u, f = _dynamic_core(model, gm._lawset, x, xdot, dt_a, fd, lo_j, hi_j,
+    cmd, u, f = _dynamic_core(model, gm.lawset, x, xdot, dt_a, fd, lo_j, hi_j,
                               jnp.asarray(0.0 if eta is None else eta), eta is not None,
                               int(n_grid), int(iters))
     return _result(cmd, u, f, fd, tol, lo_j, hi_j)
@@ -286,6 +287,9 @@ def _closed_core(model, laws, ag, dt, mass, stiff, damp, gain, mode, lo, hi, eta
     dyn = model.dynamic
     state0 = model.initial_state(0.0, 0.0) if dyn else jnp.zeros((1,))
 
+    def structure(y, _x, _xdot, p):  # m y'' + c y' + k y = -m a_g - F
+        return jnp.stack([y[1], (-mass * p[0] - damp * y[1] - stiff * y[0] - p[1]) / mass])
+
     def body(carry, agk):
         x, xd, state, u = carry
         f = model.force_at(laws(u), state, x, xd)
@@ -301,9 +305,10 @@ def _closed_core(model, laws, ag, dt, mass, stiff, damp, gain, mode, lo, hi, eta
             u1 = cmd + (u - cmd) * a
         else:
             cmd, u1 = u_star, u_star
-        acc = (-mass * agk - damp * xd - stiff * x - f) / mass
-        xd1 = xd + dt * acc  # semi-implicit Euler
-        x1 = x + dt * xd1
+        # the storey over the interval: the one integrator (RK4), ground acceleration and
+        # damper force held
+        x1, xd1 = integrate_step(structure, jnp.stack([x, xd]), jnp.stack([agk, f]),
+                                 0.0, 0.0, 0.0, 0.0, dt, 1, scheme="rk4")
         state1 = model.advance(state, laws(u), x, x1, xd, xd1, dt) if dyn else state
         return (x1, xd1, state1, u1), (x, xd, f, fd, cmd, u)
 
@@ -359,9 +364,9 @@ def closed_loop(
     eta = gm.lag if lag is MODEL_LAG else check_lag(lag)
     # sub-steps for velocities up to a generous bound of the response
     vmax = np.full(2, 10.0 * float(np.max(np.abs(ag))) * math.sqrt(mass / stiffness) + 0.1)
-    model = gm._resolved(np.linspace(float(lo), float(hi), 9), vmax, np.full(2, float(dt)))
+    model = gm.resolved_model(np.linspace(float(lo), float(hi), 9), vmax, np.full(2, float(dt)))
     x, xd, f, fd, cmd, u = _closed_core(
-        model, gm._lawset, ag, jnp.asarray(float(dt)), float(mass), float(stiffness),
+        model, gm.lawset, ag, jnp.asarray(float(dt)), float(mass), float(stiffness),
         float(damping), float(gain), modes[control], jnp.asarray(float(lo)),
         jnp.asarray(float(hi)), jnp.asarray(0.0 if eta is None else eta), eta is not None,
         int(n_grid), int(iters))

@@ -177,7 +177,10 @@ class GeneralizedModel:
         return self.model.param_names
 
     @functools.cached_property
-    def _lawset(self) -> LawSet:
+    def lawset(self) -> LawSet:
+        """Every law as one traceable function `lawset(u) -> (..., P)` of the command (the
+        parameters in SI units at `u` in `command_unit`): what :meth:`params_at`, the force
+        and the inverse evaluate."""
         laws = [self.laws[n] for n in self.param_names]
         # a NumPy constant: safe to create inside a trace (no leaked tracer in the cache)
         coef = np.concatenate([np.asarray(law.coefficients, float) for law in laws])
@@ -188,7 +191,7 @@ class GeneralizedModel:
         """Parameters (..., P) at the command `current` (in `command_unit`, A or V) of any
         shape (scalar, (C,), (T,), ...), SI units, `param_names` order. Pure JAX: traceable and
         differentiable in `current`. No lag is applied (the value of u itself)."""
-        return self._lawset(current)
+        return self.lawset(current)
 
     def with_canonical_z(self, reference: float | None = None) -> GeneralizedModel:
         """The same model with the z-scale of Bouc-Wen-type models normalised to
@@ -224,7 +227,7 @@ class GeneralizedModel:
         return self.laws[name].coefficients
 
     # ----------------------------------------------------------------------------- simulate
-    def _resolved(self, currents: np.ndarray, xdot, dt, mask=None) -> AbstractModel:
+    def resolved_model(self, currents: np.ndarray, xdot, dt, mask=None) -> AbstractModel:
         """The model with its sub-steps fixed on the host for the currents in use (the laws
         at 9 currents spanning them) on data `xdot`, `dt` (`mask`: the real samples)."""
         m = self.model
@@ -269,9 +272,9 @@ class GeneralizedModel:
                              f"got {cur.shape}")
         lag = self.lag if lag is MODEL_LAG else check_lag(lag)
         concrete = not any(isinstance(a, jax.core.Tracer) for a in (x, xdot, dt, cur))
-        model = self._resolved(np.asarray(cur), np.asarray(xdot), np.asarray(dt)) if concrete \
+        model = self.resolved_model(np.asarray(cur), np.asarray(xdot), np.asarray(dt)) if concrete \
             else self.model
-        return force_one(model, self._lawset, x, xdot, jnp.asarray(dt, float), cur,
+        return force_one(model, self.lawset, x, xdot, jnp.asarray(dt, float), cur,
                           jnp.asarray(0.0 if lag is None else lag), lag is not None)
 
     def _batch_currents(self, batch: Batch, current) -> np.ndarray:
@@ -307,11 +310,11 @@ class GeneralizedModel:
         batch = as_batch(batch)
         cur = self._batch_currents(batch, current)
         lag = self.lag if lag is MODEL_LAG else check_lag(lag)
-        model = self._resolved(cur, batch.xdot, batch.dt, batch.mask)
+        model = self.resolved_model(cur, batch.xdot, batch.dt, batch.mask)
         per_sample = cur.ndim == 2 or lag is not None
         if cur.ndim == 1 and per_sample:
             cur = np.broadcast_to(cur[:, None], (batch.n_conditions, batch.length))
-        f = force_batch(model, self._lawset, batch.x, batch.xdot, batch.dt, jnp.asarray(cur),
+        f = force_batch(model, self.lawset, batch.x, batch.xdot, batch.dt, jnp.asarray(cur),
                          jnp.asarray(0.0 if lag is None else lag), lag is not None, per_sample)
         return np.asarray(f)
 

@@ -15,6 +15,7 @@ from ._hysteretic import Dahl as Dahl
 from ._hysteretic import ModifiedBoucWen as ModifiedBoucWen
 from ._integrate import SCHEMES as SCHEMES
 from ._integrate import integrate as integrate
+from ._integrate import integrate_step as integrate_step
 from ._integrate import rk4_scan as rk4_scan
 from ._registry import get as get
 from ._registry import names as names
