@@ -382,6 +382,17 @@ def test_generalize_without_current_fails_before_fitting(layouts, tmp_path):
     assert "varies in time" in line and not (tmp_path / "o").exists()
 
 
+def test_generalize_without_current_or_command_fails_before_fitting(layouts, tmp_path):
+    """Layout (a) read without its command column: no current for --generalize."""
+    columns = OPTIONS_A["columns"].replace(",command=V:V", "")
+    code, stdout, err = run(["fit", *layouts["files"]["a"], "--columns", columns, "--model",
+                             "kwok", "--generalize", "two-step", "--out", tmp_path / "o"])
+    assert code == 2 and stdout == "" and "fitting" not in err
+    line = one_error_line(err)
+    assert "--generalize needs the current of every test" in line and "'random'" in line
+    assert "--current" in line and not (tmp_path / "o").exists()
+
+
 def test_data_options_in_help():
     for command in ("fit", "predict", "compare", "inspect"):
         code, out, _ = run([command, "--help"])
