@@ -136,6 +136,61 @@ def test_frozen_condition_ignores_others():
     assert np.all(np.diff(np.asarray(ra.history), axis=1) <= 0)
 
 
+class CountingSphere(AbstractObjective):
+    """Sphere that also counts its evaluations per condition (host callback), to check that
+    paging scores only the conditions still running."""
+
+    def __call__(self, position, data):
+        centre, index = data
+        jax.debug.callback(_count, index, ordered=False)
+        return jnp.sum((position - centre) ** 2)
+
+
+_COUNTS: dict[int, int] = {}
+
+
+def _count(i):
+    _COUNTS[int(i)] = _COUNTS.get(int(i), 0) + 1
+
+
+@pytest.mark.parametrize("page", [1, 2, 3])
+def test_pages_score_only_running_conditions_same_result(page):
+    # seven conditions with very different difficulty stop at different generations
+    C, D, N = 7, 3, 6
+    centres = jnp.asarray(np.random.default_rng(3).uniform(-3, 3, (C, D)))
+    data = (centres, jnp.arange(C))
+    keys = jax.random.split(jax.random.key(8), C)
+    p = PSOParams(window=4)
+    _COUNTS.clear()
+    whole = swarm(CountingSphere(), -5 * jnp.ones(D), 5 * jnp.ones(D), data, key=keys,
+                  params=p, n_particles=N, max_generations=200)
+    all_counts = dict(_COUNTS)
+    _COUNTS.clear()
+    paged = swarm(CountingSphere(), -5 * jnp.ones(D), 5 * jnp.ones(D), data, key=keys,
+                  params=p, n_particles=N, max_generations=200, page_size=page)
+    gens = np.asarray(whole.generations)
+    assert len(set(gens.tolist())) > 1  # the conditions do stop at different generations
+    for name in ("position", "fitness", "generations", "history", "stopped_by_criterion"):
+        assert np.array_equal(np.asarray(getattr(whole, name)), np.asarray(getattr(paged, name)))
+    # unpaged: every condition scored every generation until the last stops (+ the start);
+    # `unit` callbacks per scoring of one condition (JAX may batch the particles' callbacks)
+    unit = all_counts[0] // (gens.max() + 1)
+    assert unit >= 1
+    assert all(all_counts[i] == unit * (gens.max() + 1) for i in range(C))
+    # paged: each condition until its own stop; padding of the last page (conditions that
+    # already stopped) is the only extra work
+    work = sum(_COUNTS.values()) / unit
+    assert all(_COUNTS[i] >= unit * (gens[i] + 1) for i in range(C))
+    assert work <= sum(gens + 1) + (page - 1) * gens.max()
+    assert work < sum(all_counts.values()) / unit
+
+
+def test_page_size_validated():
+    with pytest.raises(mrjax.InputError, match="page_size"):
+        swarm(Sphere(), -jnp.ones(2), jnp.ones(2), jnp.zeros((3, 2)), key=jax.random.key(0),
+              page_size=0)
+
+
 # ---------------------------------------------------------------------------- statistical stop
 
 

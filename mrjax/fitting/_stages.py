@@ -27,16 +27,20 @@ from ..models import AbstractModel, check_bounds, get, resolve_model
 from ..objective import fit_mask, nrmse, rms_per_condition
 from ..parallel import shard_batch, unpad
 from ..pso import PSOParams, default_params
-from ..refine import DEFAULT_TOL, Uncertainty, polish, uncertainty
+from ..refine import (
+    DEFAULT_TOL,
+    FULL_MAX_STEPS,
+    FULL_TOL_FACTOR,
+    VIEW_TOL_FACTOR,
+    Uncertainty,
+    polish,
+    uncertainty,
+)
 from ._result import FitResult
-from ._swarm import fit_swarm
+from ._swarm import auto_page_size, fit_swarm
 from ._view import View, swarm_view
 
 Method = Literal["pso", "pso+lm", "lm"]
-#: After a polish on the swarm's view, the polish of the full record stops at this multiple of
-#: `polish_tol`, or after `FULL_MAX_STEPS` steps (see `run_polish`).
-FULL_TOL_FACTOR = 100.0
-FULL_MAX_STEPS = 4
 SwarmMode = Literal["separable", "full"]
 
 
@@ -277,7 +281,10 @@ def run_swarm(p: Problem) -> SwarmStage:
         batch, mask = p.batch, p.mask
     cb, bar = _callbacks(p)
     try:
-        sw = fit_swarm(p.model, batch, key=p.key, mask=mask, callback=cb, **p.swarm_options)
+        # sharded over devices, the pages' gathers would move data between them: one batch
+        page = "auto" if p.devices is None else None
+        sw = fit_swarm(p.model, batch, key=p.key, mask=mask, callback=cb, page_size=page,
+                       **p.swarm_options)
         jax.block_until_ready(sw.rms)
     finally:
         if bar is not None:
@@ -306,8 +313,12 @@ def run_polish(p: Problem, start: SwarmStage) -> PolishStage:
             # the swarm's integration: on the view's coarse grid step doubling would ask for
             # many steps, and this phase only has to bring the full-record polish close
             view_model = resolve_model(p.model, theta, vb.xdot, vb.dt, vb.mask, swarm=True)
+            # in pages: the solves differ a lot in length (MBW on the UTFSM views: 5 to 118
+            # steps), and a page stops with its own slowest (warm 13.7 -> 11.2 s)
+            page = auto_page_size(p.model, C) if p.devices is None else None
             first = polish(view_model, theta, vb, mask=vm, lower=p.lower, upper=p.upper,
-                           max_steps=p.polish_steps, tol=p.polish_tol, uncertainty=False)
+                           max_steps=p.polish_steps, tol=p.polish_tol * VIEW_TOL_FACTOR,
+                           uncertainty=False, page_size=page)
             theta = np.asarray(first.theta)
             timings["polish_view"] = time.perf_counter() - t0
         # from the view's converged point the full record needs only a refinement (measured
@@ -419,9 +430,9 @@ def fit(
     - `pso_params`: :class:`mrjax.pso.PSOParams` hyperparameters.
     - `polish_steps`: maximum Levenberg-Marquardt steps.
     - `polish_tol`: the polish stops when 8 steps lower the RMS by less than this fraction
-        (see `mrjax.refine.lm_solve`); after a first polish on the swarm's view (see
-        `swarm_view`) the full record is refined to `FULL_TOL_FACTOR` (100) times it, in at
-        most `FULL_MAX_STEPS` (4) steps.
+        (see `mrjax.refine.lm_solve`). With a swarm view (see `swarm_view`) a first polish on
+        the view stops at `VIEW_TOL_FACTOR` (10) times it, then the full record is refined to
+        `FULL_TOL_FACTOR` (100) times it, in at most `FULL_MAX_STEPS` (4) steps.
     - `uncertainty`: compute std-errors and intervals (needs the polish machinery; also for
         `method="pso"`).
     - `progress`: show a progress bar (None: only on a TTY).
@@ -438,7 +449,7 @@ def fit(
         ODE models (modified Bouc-Wen) against a swarm that ends in a poor basin. The reported
         generations, stop flag and history are those of the chosen swarm. Default 1.
     - `swarm_view`: let the swarm (and a first polish) score a subsampled copy of each record
-        (about 64 samples per period, the first whole periods up to about 1,000 samples; see
+        (about 128 samples per period, the first whole periods up to about 1,000 samples; see
         `mrjax.fitting.swarm_view`), then polish on the full record. `None` (default): for the
         ODE models only, whose cost is one sequential integrator step per sample. Every
         reported RMS, including `pso_rms`, is on the full record.

@@ -28,6 +28,21 @@ from ..objective import (
 )
 from ..pso import AbstractObjective, PSOParams, SwarmResult, default_params, swarm
 
+#: `page_size="auto"`: a dynamic model's swarms (and view polishes) are run this many
+#: conditions at a time. A fixed width, and a multiple of the float64 vector width (4): a
+#: condition's result then does not depend on how many others share the batch (the chunks of
+#: `mrjax.fitting.chunk_plan` are aligned the same way).
+AUTO_PAGE = 8
+
+
+def auto_page_size(model: AbstractModel, n_conditions: int) -> int | None:
+    """Conditions per page for the batched swarm and the view polish of `model` on
+    `n_conditions` (see `mrjax.pso.swarm`'s `page_size`): `AUTO_PAGE` (8) for a dynamic model
+    on at least 16 conditions, else `None` (one batch)."""
+    if model.dynamic and n_conditions >= 2 * AUTO_PAGE:
+        return AUTO_PAGE
+    return None
+
 
 class ModelSwarm(eqx.Module):
     """Result of :func:`fit_swarm`: the swarm outcome in model parameters.
@@ -60,6 +75,7 @@ def fit_swarm(
     max_generations: int = 200,
     callback: Callable | None = None,
     dtype: Any = None,
+    page_size: int | Literal["auto"] | None = "auto",
 ) -> ModelSwarm:
     """Identify `model` on every condition of `batch` with the batched swarm.
 
@@ -77,6 +93,11 @@ def fit_swarm(
     - `dtype`: float dtype of the swarm (see `mrjax.pso.swarm`), e.g. `"float32"`. The returned
         `theta` and `rms` are always recomputed in the default float (float64) from the best
         swarm positions, so only the search runs in the lower precision.
+    - `page_size`: score only the conditions still running, this many at a time (see
+        `mrjax.pso.swarm`). `"auto"` (default): :func:`auto_page_size` (8 conditions per page for a
+        dynamic model on 16 or more conditions, whose generations are costly and whose swarms
+        stop at very different generations; otherwise `None`, every condition every
+        generation).
 
     ODE models integrate with the swarm's policy of `mrjax.models.resolve_model` (one L-stable
     step per sample).
@@ -105,8 +126,11 @@ def fit_swarm(
             s_hi = jnp.asarray(np.where(logs, np.log(np.where(logs, hi[nl], 1.0)), hi[nl]))
     else:
         raise InputError(f"swarm mode must be 'separable' or 'full', got {mode!r}")
+    if page_size == "auto":
+        page_size = auto_page_size(model, batch.n_conditions)
     res = swarm(obj, s_lo, s_hi, data, key=key, params=params, n_particles=n_particles,
-                max_generations=max_generations, callback=callback, dtype=dtype)
+                max_generations=max_generations, callback=callback, dtype=dtype,
+                page_size=page_size)
     if dtype is None or jnp.dtype(dtype) == s_lo.dtype:
         theta = _to_params(obj, res.position, data)
         return ModelSwarm(theta=theta, rms=res.fitness, result=res, mode=mode)

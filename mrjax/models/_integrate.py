@@ -178,12 +178,12 @@ def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme:
         sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
     else:
         sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m)
-    if m <= 4:  # unrolled: static stage positions
-        for j in range(m):
-            y = sub(j, y)
-    else:
-        y = jax.lax.fori_loop(0, m, sub, y, unroll=4)
-    return y
+    if m == 1:
+        return sub(0, y)
+    # a rolled loop: unrolled sub-steps made XLA's forward-mode code grow with m squared (one
+    # MBW Jacobian on 4,000 samples, SDIRK: 30 / 168 / 417 ms at m = 1 / 2 / 3 unrolled,
+    # 30 / 60 / 90 ms rolled; RK4 at m = 6: 49 -> 34 ms)
+    return jax.lax.fori_loop(0, m, sub, y)
 
 
 def integrate_step(

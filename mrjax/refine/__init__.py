@@ -39,6 +39,9 @@ from ._lm import lm_solve as lm_solve
 from ._lm import status_name as status_name
 from ._polish import BOUND_NUDGE as BOUND_NUDGE
 from ._polish import BOUND_SNAP as BOUND_SNAP
+from ._polish import FULL_MAX_STEPS as FULL_MAX_STEPS
+from ._polish import FULL_TOL_FACTOR as FULL_TOL_FACTOR
+from ._polish import VIEW_TOL_FACTOR as VIEW_TOL_FACTOR
 from ._polish import Polished as Polished
 from ._polish import polish as polish
 from ._uncertainty import CORR_LIMIT as CORR_LIMIT

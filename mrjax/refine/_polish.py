@@ -111,6 +111,19 @@ class Polished(eqx.Module):
                 f"improved={int(np.sum(np.asarray(self.improved)))}/{C}, status={counts})")
 
 
+#: After a polish on a view of the records (`mrjax.fitting.swarm_view`), the polish of the full
+#: records stops at this multiple of the tolerance, or after `FULL_MAX_STEPS` steps: from the
+#: view's optimum the full records need only a refinement (measured on the 30 UTFSM tests,
+#: modified Bouc-Wen: it lowers the RMS by 0.02 % (median), 0.23 % at most, 95 % of that in
+#: the first 4 steps). Used by `mrjax.fit` and the joint laws of `mrjax.generalize`.
+FULL_TOL_FACTOR = 100.0
+FULL_MAX_STEPS = 4
+#: The polish on the views stops at this multiple of the tolerance: the full records' refinement
+#: follows (MBW on the 30 UTFSM tests: 10 x cut the view polish from 20.2 to 16.7 s with every
+#: test's NRMSE unchanged to 0.001 points).
+VIEW_TOL_FACTOR = 10.0
+
+
 def _to_theta(u, lo, hi):
     return lo + (hi - lo) * 0.5 * (jnp.sin(u) + 1.0)
 
@@ -163,13 +176,30 @@ def _polish_one(model, free_idx, max_steps, tol, theta0, lo, hi, x, xdot, dt, fo
     return theta, rms, rms0, sol.steps, sol.status, ~take
 
 
+def _paged(fn, page: int | None, *args):
+    """`jax.vmap(fn)(*args)`, or `page` conditions at a time (`lax.map` over pages of a
+    padded batch, one compiled page): each page's solves stop when its own slowest does."""
+    C = args[0].shape[0]
+    if page is None or page >= C:
+        return jax.vmap(fn)(*args)
+    n = -(-C // page)
+    pad = n * page - C
+
+    def paged(a):  # (C, ...) -> (n, page, ...), padded with copies of the last condition
+        a = jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]) if pad else a
+        return a.reshape((n, page) + a.shape[1:])
+
+    out = jax.lax.map(lambda xs: jax.vmap(fn)(*xs), tuple(paged(a) for a in args))
+    return jax.tree.map(lambda a: a.reshape((n * page,) + a.shape[2:])[:C], out)
+
+
 @eqx.filter_jit
 def _polish_core(model, free_idx, max_steps, with_unc, tol, theta0, lo, hi, x, xdot, dt, force,
-                 mask):
+                 mask, page=None):
     def one(th0, a, b, c, f, m):
         return _polish_one(model, free_idx, max_steps, tol, th0, lo, hi, a, b, c, f, m)
 
-    theta, rms, rms0, steps, code, kept = jax.vmap(one)(theta0, x, xdot, dt, force, mask)
+    theta, rms, rms0, steps, code, kept = _paged(one, page, theta0, x, xdot, dt, force, mask)
     if not with_unc:
         return (theta, rms, rms0, steps, code, kept), None
     unc = jax.vmap(lambda th, a, b, c, f, m: uncertainty_one(model, free_idx, th, a, b, c, f, m))(
@@ -189,6 +219,7 @@ def polish(
     tol: float = DEFAULT_TOL,
     free: Bool[ArrayLike, " P"] | Sequence[str] | None = None,
     uncertainty: bool = True,
+    page_size: int | None = None,
     rtol: float | None = None,
     atol: float | None = None,
 ) -> Polished:
@@ -221,6 +252,13 @@ def polish(
         held at `theta0`.
     - `uncertainty`: compute the uncertainty at the result (default); `False` skips that
         Jacobian pass (e.g. for an intermediate polish) and reports NaN std-errors.
+    - `page_size`: `None` (default) solves every condition in one batch, which steps until
+        its slowest condition stops. An integer K (static) solves K conditions at a time
+        (one compiled page): a page stops when its own slowest condition does, so one
+        condition that needs 150 steps no longer makes all the others wait; each page is
+        narrower, so this pays where step counts differ a lot and each step is costly. The
+        results are those of one batch up to rounding (a narrower batch vectorises
+        differently: about 1e-10 relative).
 
     **Returns:** a :class:`Polished` with `theta`, `rms`, `rms_start`, `steps`, `status`,
     `improved`, `kept_start`, `at_bound` and `uncertainty` (`stderr`, `cov`, `corr`, `ci95`,
@@ -235,6 +273,9 @@ def polish(
         tol = max(float(rtol or 0.0), float(atol or 0.0))
     if not (math.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be a positive number, got {tol!r}")
+    if page_size is not None and (isinstance(page_size, bool) or int(page_size) != page_size
+                                  or page_size < 1):
+        raise InputError(f"page_size must be a positive integer or None, got {page_size!r}")
     C = batch.n_conditions
     lo, hi = check_bounds(model, (lower, upper))
     theta0 = np.clip(as_theta(model, theta0, C, "theta0"), lo, hi)
@@ -251,6 +292,7 @@ def polish(
         model, free_idx, int(max_steps), bool(uncertainty), jnp.asarray(tol, float),
         jnp.asarray(theta0), jnp.asarray(lo), jnp.asarray(hi), batch.x, batch.xdot, batch.dt,
         batch.force, jnp.asarray(m),
+        None if page_size is None or int(page_size) >= C else int(page_size),
     )
     theta_np = np.asarray(theta)
     kept_np = np.asarray(kept)
