@@ -41,6 +41,7 @@ from ._stages import run_polish as run_polish
 from ._stages import run_swarm as run_swarm
 from ._swarm import ModelSwarm as ModelSwarm
 from ._swarm import fit_swarm as fit_swarm
+from ._view import JOINT_SAMPLES_PER_PERIOD as JOINT_SAMPLES_PER_PERIOD
 from ._view import View as View
 from ._view import swarm_view as swarm_view
 from ._view import view_plan as view_plan

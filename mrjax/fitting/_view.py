@@ -5,10 +5,10 @@ the full record. Scoring every particle on every sample of a long, densely sampl
 costs far more than that needs (a 0.1 Hz sine test sampled at 200 Hz has 2,000 samples per
 cycle and 5-10 cycles). For the swarm, each record is therefore *subsampled* (every k-th
 measured sample, nothing filtered) to about `SAMPLES_PER_PERIOD` samples per period of its
-highest significant frequency, and a periodic record is cut to its first whole periods, at
-least `MIN_PERIODS` and about `MAX_SAMPLES` samples; no record is subsampled below
-`MIN_SAMPLES` samples. The view starts where the record starts,
-so a dynamic model's state starts where it does on the full record.
+known excitation frequency (`ESTIMATED_SAMPLES_PER_PERIOD` of an estimated one), and a
+periodic record is cut to its first whole periods, at least `MIN_PERIODS` and about
+`MAX_SAMPLES` samples; no record is subsampled below `MIN_SAMPLES` samples. The view starts
+where the record starts, so a dynamic model's state starts where it does on the full record.
 
 The frequency of a periodic test is its known excitation frequency (or the spectral estimate
 of `mrjax.data.velocity_window`); a broadband record (random motion) keeps its whole length
@@ -31,8 +31,18 @@ from ..objective import fit_mask
 #: 5th sample of 1 kHz): its two swarms fell into a local optimum (18.1 % NRMSE against the
 #: 7.4 % found at 128, which also keeps every other test within 0.17 points).
 SAMPLES_PER_PERIOD = 128
+#: Samples per period of the joint laws' swarm (`mrjax.generalize`): its coupled search was
+#: measured at this density (at 128 its full-record polish took 100 steps instead of 25 on the
+#: UTFSM tests).
+JOINT_SAMPLES_PER_PERIOD = 64
 #: Samples per period of a broadband record's bandwidth (the whole record is kept).
 BROADBAND_SAMPLES_PER_PERIOD = 32
+#: Samples per period of the spectral peak of a record without a known frequency (random
+#: motion that the bandwidth test does not call broadband, e.g. a 3 s random-command record
+#: peaking at 4.3 Hz): at 128 its view would be cut to its first 4 "periods" (0.9 of 3 s)
+#: and the joint swarm of `mrjax.generalize.identify` missed Spencer's model; at 64 it keeps
+#: 13, the whole record.
+ESTIMATED_SAMPLES_PER_PERIOD = 64
 #: About the most samples per periodic record the swarm scores (whole periods).
 MAX_SAMPLES = 1024
 #: The fewest periods a periodic record keeps.
@@ -52,19 +62,21 @@ class View:
     stop: np.ndarray
 
 
-def view_plan(cond: Condition) -> tuple[int, int]:
-    """`(step, stop)` of one record's swarm view (see the module docstring)."""
+def view_plan(cond: Condition, samples_per_period: float | None = None) -> tuple[int, int]:
+    """`(step, stop)` of one record's swarm view (see the module docstring);
+    `samples_per_period` replaces `SAMPLES_PER_PERIOD` for a known excitation frequency."""
     n = cond.n_samples
     fs = cond.sample_rate
     f = cond.frequency if cond.frequency and "frequency" not in cond.estimated else None
     broadband = False
+    per = SAMPLES_PER_PERIOD if samples_per_period is None else float(samples_per_period)
     if f is None:
         w = velocity_window(cond.t, cond.x)
         broadband = bool(w.broadband)
         f = w.bandwidth_Hz if broadband else w.peak_Hz
+        per = BROADBAND_SAMPLES_PER_PERIOD if broadband else ESTIMATED_SAMPLES_PER_PERIOD
     if not (f and math.isfinite(f) and f > 0):
         return 1, n
-    per = BROADBAND_SAMPLES_PER_PERIOD if broadband else SAMPLES_PER_PERIOD
     step = max(1, min(int(fs / (per * f)), n // MIN_SAMPLES))
     if broadband:
         return step, n
@@ -74,12 +86,13 @@ def view_plan(cond: Condition) -> tuple[int, int]:
 
 
 def swarm_view(batch: Batch, transient: float | str | None = None, *,
-               length: int | None = None) -> View:
+               length: int | None = None, samples_per_period: float | None = None) -> View:
     """The swarm's view of every condition of `batch` (padded to the longest view, or to
     `length` samples: the chunks of one fit share the view length of the whole batch), with its
-    fit mask (the same `transient` rule as the full fit)."""
+    fit mask (the same `transient` rule as the full fit). `samples_per_period`: the density
+    for records of known frequency (default `SAMPLES_PER_PERIOD`)."""
     conds = batch.conditions()
-    plans = [view_plan(c) for c in conds]
+    plans = [view_plan(c, samples_per_period) for c in conds]
     views = [c.subsample(step, stop) for c, (step, stop) in zip(conds, plans)]
     vb = make_batch(views, length=length)
     return View(batch=vb, mask=fit_mask(vb, transient), step=np.array([p[0] for p in plans]),

@@ -14,7 +14,7 @@ from jaxtyping import ArrayLike
 
 from .._errors import InputError
 from ..data import Batch
-from ..fitting import FitResult, as_batch
+from ..fitting import JOINT_SAMPLES_PER_PERIOD, FitResult, as_batch
 from ..fitting import swarm_view as make_view
 from ..models import AbstractModel, resolve_model
 from ..objective import check_mask
@@ -183,7 +183,7 @@ def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool) -> JointP
     s_hi = np.clip(np.asarray(s_hi, float), lm_lo[:D], lm_hi[:D])
     view = None
     if use_view:
-        v = make_view(batch)
+        v = make_view(batch, samples_per_period=JOINT_SAMPLES_PER_PERIOD)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          np.asarray(v.batch.current, float))
     lo, hi = float(start.levels.min()), float(start.levels.max())

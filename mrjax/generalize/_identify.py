@@ -16,7 +16,7 @@ from jaxtyping import ArrayLike
 from .._errors import InputError
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch, Condition
-from ..fitting import as_batch
+from ..fitting import JOINT_SAMPLES_PER_PERIOD, as_batch
 from ..fitting import swarm_view as make_view
 from ..models import AbstractModel, check_bounds, get
 from ..objective import fit_mask
@@ -224,7 +224,7 @@ def identify(
     use_view = model.dynamic if swarm_view is None else bool(swarm_view)
     view = None
     if use_view:
-        v = make_view(batch, transient)
+        v = make_view(batch, transient, samples_per_period=JOINT_SAMPLES_PER_PERIOD)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          batch_command(v.batch, unit))
     problem = JointProblem(model=model, layout=layout, objective=obj, lower=lm_lo[:D],

@@ -67,9 +67,7 @@ from ..pso import AbstractObjective, PSOParams, default_params, swarm
 from ..refine import (
     BOUND_NUDGE,
     DEFAULT_TOL,
-    FULL_MAX_STEPS,
     FULL_TOL_FACTOR,
-    VIEW_TOL_FACTOR,
     jacobian_uncertainty,
     lm_solve,
     status_name,
@@ -774,13 +772,20 @@ def joint_fit(
         z = np.clip(coding.bounded_of(nu_best, eta_best), lo_b, hi_b)
         nu_s, eta_s = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
         stages = []
-        if problem.view is not None:  # the swarm's integration on the views (as mrjax.fit)
-            m_view = resolve_model(problem.model, problem.lower, None, None, swarm=True)
-            stages.append(("view", problem.view, tol * VIEW_TOL_FACTOR, int(polish_steps), m_view))
-        # from the views' optimum the full records need only a refinement (measured on the 30
-        # UTFSM tests, modified Bouc-Wen: 25 full-record steps from the swarm took 52 s)
-        stages.append(("full", full, tol * FULL_TOL_FACTOR, min(int(polish_steps), FULL_MAX_STEPS),
-                       None) if stages else ("full", full, tol, int(polish_steps), None))
+        if problem.view is not None:
+            m_view = _resolved(problem, nu_s, float(eta_s), problem.view)
+            if not m_view.dynamic or m_view.scheme != "sdirk":
+                stages.append(("view", problem.view, tol, int(polish_steps), m_view))
+            else:
+                # measured on the UTFSM tests and Spencer's known answer: the coupled laws'
+                # optimum on the views (coarse grid, one L-stable step) can lie in another
+                # basin than the full records' (total RMS 74.3 N against 63.7 N, held-out
+                # median 27 % against 11 %), which a few full-record steps do not leave
+                info["polish_view_skipped"] = (
+                    "the views' optimum of the coupled laws can lie in another basin than the "
+                    "full records'")
+        full_tol = tol * (FULL_TOL_FACTOR if stages else 1.0)
+        stages.append(("full", full, full_tol, int(polish_steps), None))
         for stage, data, stage_tol, stage_steps, m in stages:
             t2 = time.perf_counter()
             if m is None:
