@@ -34,11 +34,14 @@ without per-sample commands packs its samples into rows of `PACK_ROW` (one curre
 
 1. the batched swarm (:func:`mrjax.pso.swarm`, `restarts` independent swarms as its
     "conditions") scores every particle on the records' *views* (`mrjax.fitting.swarm_view`:
-    about 128 samples per period, or 32 per period of a broadband record's bandwidth),
+    `JOINT_SAMPLES_PER_PERIOD` (64) samples per period, or 32 per period of a broadband
+    record's bandwidth),
     integrating with one L-stable step per sample;
-2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown, first on the views to
-    `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
-    `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data;
+2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown on the full records to
+    `tol` (static models with views: first on the views, then the full records to
+    `FULL_TOL_FACTOR` x `tol`; the ODE models skip the views, whose optimum of the coupled laws
+    can lie in another basin), with the sub-steps of `mrjax.models.resolve_model` for the laws
+    at `N_LEVELS` commands spanning the data;
 3. the total RMS on every scored sample of the full records, and the linearised std-errors of
     every coefficient and of $\\eta$ (`mrjax.refine.jacobian_uncertainty`, mapped to the
     coefficients by the delta method) with identifiability flags.
