@@ -37,11 +37,12 @@ without per-sample commands packs its samples into rows of `PACK_ROW` (one curre
     `JOINT_SAMPLES_PER_PERIOD` (64) samples per period, or 32 per period of a broadband
     record's bandwidth),
     integrating with one L-stable step per sample;
-2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown on the full records to
-    `tol` (static models with views: first on the views, then the full records to
-    `FULL_TOL_FACTOR` x `tol`; the ODE models skip the views, whose optimum of the coupled laws
-    can lie in another basin), with the sub-steps of `mrjax.models.resolve_model` for the laws
-    at `N_LEVELS` commands spanning the data;
+2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown, first on the views to
+    `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
+    `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data; where
+    the views need the L-stable scheme (the stiff ODE fits, e.g. the UTFSM tests) the views'
+    polish is skipped and the full records are polished to `tol` from the start: there the
+    coupled laws' optimum on the coarse views can lie in another basin than on the records;
 3. the total RMS on every scored sample of the full records, and the linearised std-errors of
     every coefficient and of $\\eta$ (`mrjax.refine.jacobian_uncertainty`, mapped to the
     coefficients by the delta method) with identifiability flags.
@@ -695,14 +696,18 @@ def _resolved(problem: JointProblem, nu, eta, data: tuple[Rows, ...]) -> Abstrac
     return resolve_model(model, rows, xdot, dt, mask)
 
 
+def _swarm_model(problem: JointProblem) -> AbstractModel:
+    """The model with the swarm's integration policy (one L-stable step per sample, no
+    estimate needed); static models unchanged."""
+    return resolve_model(problem.model, problem.lower, None, None, swarm=True)
+
+
 def _swarm_stage(problem: JointProblem, key, n_particles, max_generations, pso_params,
                  restarts, info):
     """The swarm on the views (or the records): `(nu, eta, rms on the data it scored)`."""
     obj = problem.objective
     data = problem.view if problem.view is not None else problem.full
-    # the swarm's integration policy (one L-stable step per sample; no estimate needed)
-    model_sw = resolve_model(problem.model, problem.lower, None, None, swarm=True)
-    obj = eqx.tree_at(lambda o: o.model, obj, model_sw)
+    obj = eqx.tree_at(lambda o: o.model, obj, _swarm_model(problem))
     if obj.coding.n_position == 0:
         nu, eta, rms = objective_at(obj, jnp.zeros((0,)), data)
         info.update(swarm_generations=0, swarm_stopped_by_criterion=False)
@@ -757,8 +762,7 @@ def joint_fit(
     # every candidate on the full records with the swarm's integration (one compiled
     # function for all; they are only ranked here, the result's RMS is scored after the polish
     # with the polish's sub-steps)
-    m_rank = (resolve_model(problem.model, problem.lower, None, None, swarm=True)
-              if problem.model.dynamic else problem.model)
+    m_rank = _swarm_model(problem)
     for name, nu, eta in cands:
         scored.append((float(total_rms_of(m_rank, coding, jnp.asarray(nu), eta, full)), name, nu,
                        eta))
