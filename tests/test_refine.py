@@ -275,3 +275,33 @@ def test_substeps_resolved_on_host(bw_batch):
     assert resolved.substeps == expected >= 1
     assert resolve_model(BOUC_WEN, rows, bw_batch.xdot, bw_batch.dt) is BOUC_WEN
     assert resolve_model(KWOK, rows, bw_batch.xdot, bw_batch.dt) is KWOK
+
+
+def test_lm_scale_moves_a_flat_variable():
+    """`lm_solve(scale=)`: a steep amplitude and a time constant whose residuals are 10^6 times
+    less sensitive at the start (it enters as exp(-t / (0.01 e^y1)) with y1 = -2, far below
+    the truth 1.5). Unscaled, the damped steps barely move it and the stall test stops the solve
+    short; scaled by the start's column norms, the known answer is recovered."""
+    import jax
+    import jax.numpy as jnp
+
+    from mrjax.refine import lm_solve
+
+    t = jnp.linspace(0.0, 1.0, 50)
+
+    def step_response(y):
+        return y[0] * (1.0 - jnp.exp(-t / (0.01 * jnp.exp(y[1]))))
+
+    target = step_response(jnp.array([2.0, 1.5]))
+
+    def fn(y, _):
+        return step_response(y) - target
+
+    y0 = jnp.array([1.0, -2.0])
+    cols = jnp.linalg.norm(jax.jacfwd(fn)(y0, None), axis=0)
+    assert cols[1] < 1e-4 * cols[0]
+    plain = lm_solve(fn, y0, None, max_steps=500, tol=1e-8)
+    scaled = lm_solve(fn, y0, None, max_steps=500, tol=1e-8, scale=cols)
+    assert abs(float(plain.value[1]) - 1.5) > 1.0  # stuck near its start
+    np.testing.assert_allclose(np.asarray(scaled.value), [2.0, 1.5], rtol=1e-4)
+    assert int(scaled.status) == 0 and int(scaled.steps) < 100

@@ -234,7 +234,7 @@ def generalize(
         (`restarts` independent swarms in one compiled program, the best kept).
     - `polish`, `polish_steps`, `tol`: the joint Levenberg-Marquardt polish, its maximum steps
         per stage and its stop (`mrjax.refine.lm_solve`; the full records to 100 x `tol`
-        after the views).
+        after the views, to 10 x `tol` where the views' polish is skipped).
     - `mask`: (C, T) samples to score (default the batch mask; combined with it). The swarm's
         views score every sample of theirs.
     - `swarm_view`: let the joint swarm and a first polish score the records' views

@@ -157,7 +157,8 @@ def identify(
         `pso_params`: window 25 and, for dynamic models, at least
         `MIN_GENERATIONS_DYNAMIC` generations).
     - `polish`, `polish_steps`, `tol`: the Levenberg-Marquardt stages (`mrjax.refine.lm_solve`;
-        views to `tol`, full records to 100 x `tol`).
+        views to `tol`, full records to 100 x `tol`; 10 x `tol` where the views' polish is
+        skipped).
     - `uncertainty`: std-errors and identifiability of every coefficient and of $\\eta$.
     - `swarm_view`: score the swarm and a first polish on the records' views
         (`mrjax.fitting.swarm_view`); default: for the ODE models.

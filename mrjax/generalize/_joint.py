@@ -40,9 +40,12 @@ without per-sample commands packs its samples into rows of `PACK_ROW` (one curre
 2. Levenberg-Marquardt (`mrjax.refine.lm_solve`) on every unknown, first on the views to
     `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
     `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data; where
-    the views need the L-stable scheme (the stiff ODE fits, e.g. the UTFSM tests) the views'
-    polish is skipped and the full records are polished to `tol` from the start: there the
-    coupled laws' optimum on the coarse views can lie in another basin than on the records;
+    the records need the L-stable scheme (the stiff ODE fits, e.g. the UTFSM tests; then so
+    do their coarser views) the views' polish is skipped and the full records are polished
+    from the start to `VIEW_TOL_FACTOR` x `tol` (where the per-test polish on the views
+    stops): there the coupled laws' optimum on the coarse views can lie in another basin than
+    on the records. Each variable is scaled by the residuals' sensitivity to it at the start
+    (`lm_solve(scale=)`);
 3. the total RMS on every scored sample of the full records, and the linearised std-errors of
     every coefficient and of $\\eta$ (`mrjax.refine.jacobian_uncertainty`, mapped to the
     coefficients by the delta method) with identifiability flags.
@@ -72,6 +75,7 @@ from ..refine import (
     BOUND_NUDGE,
     DEFAULT_TOL,
     FULL_TOL_FACTOR,
+    VIEW_TOL_FACTOR,
     jacobian_uncertainty,
     lm_solve,
     status_name,
@@ -252,13 +256,6 @@ def packed_rows(batch: Batch, mask: np.ndarray, current: np.ndarray) -> tuple[Ro
         keep[u, :k] = True
     return (Rows(*(jnp.asarray(a) for a in out), mask=jnp.asarray(keep),
                  command=jnp.asarray(currents, float)),)
-
-
-def flat_records(data: tuple[Rows, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`(xdot, dt, mask)` of every row of every group, flattened (for the sub-step policy)."""
-    cat = [np.concatenate([np.asarray(getattr(r, k)).ravel() for r in data])
-           for k in ("xdot", "dt", "mask")]
-    return cat[0], cat[1], cat[2].astype(bool)
 
 
 # ------------------------------------------------------------------------------ coding
@@ -495,8 +492,15 @@ def polish_unknowns(model, coding, data, z0, lower, upper, max_steps, tol):
         nu, eta = coding.from_bounded(to_z(w))
         return joint_residuals(model, coding, nu, eta, args)
 
+    # each variable scaled by the residuals' sensitivity to moving it across its box (the
+    # Jacobian's columns at the start, without the sine map's cos w, which vanishes on a
+    # bound): the coupled laws have flat directions (e.g. the unloading shape q of the UTFSM
+    # fits) along which the unscaled solve crawled for 100 steps
+    J0 = jax.jacfwd(fn)(w0, data)
+    slope = half * jnp.cos(w0)
+    sens = jnp.linalg.norm(J0, axis=0) / jnp.where(slope > 0, slope, 1.0) * half
     sol = lm_solve(fn, w0, data, max_steps=max_steps, tol=tol,
-                   jacobian="forward" if model.dynamic else "linearize")
+                   jacobian="forward" if model.dynamic else "linearize", scale=sens)
     z = to_z(sol.value)
     nu, eta = coding.from_bounded(z)
     return z, total_rms_of(model, coding, nu, eta, data), sol.steps, sol.status
@@ -677,23 +681,38 @@ class JointOutcome:
     dof: int = 0
 
 
-def _resolved(problem: JointProblem, nu, eta, data: tuple[Rows, ...]) -> AbstractModel:
+def _resolved(problem: JointProblem, nu, eta, data: tuple[Rows, ...],
+              cache: dict | None = None) -> AbstractModel:
     """The model with the polish's sub-step policy for the laws at `problem.levels` on
-    `data` (the stiffest level first: the step doubling integrates the first row)."""
+    `data`: the stiffest level decides (its step doubling integrates every row of each group
+    side by side). `cache` (a dict) keeps the answer per `(nu, eta, data)` to float32
+    precision (a round trip through the polish's variables changes the last bits): the
+    policy's step doubling costs a few forward integrations (3-5 s on the 30 UTFSM tests)."""
     model = problem.model
     if not model.dynamic or model.substeps is not None:
         return model
+    nu = np.asarray(nu, float)
+    key = (nu.astype(np.float32).tobytes(), np.float32(eta), id(data))
+    if cache is not None and key in cache:
+        return cache[key]
     rows = np.asarray(problem.coding.lawset(jnp.asarray(nu))(jnp.asarray(problem.levels)))
-    xdot, dt, mask = flat_records(data)
-    vmax = float(np.max(np.abs(np.where(mask, xdot, 0.0)))) if mask.any() else 0.0
+    xdot = tuple(np.asarray(r.xdot) for r in data)
+    dt = tuple(np.asarray(r.dt) for r in data)
+    mask = tuple(np.asarray(r.mask, bool) for r in data)
+    vmax = max(float(np.max(np.abs(np.where(m, v, 0.0)))) if m.any() else 0.0
+               for v, m in zip(xdot, mask))
     with np.errstate(all="ignore"):
         rate = np.array([model.stiffness(r, vmax) if np.all(np.isfinite(r)) else -1.0
                          for r in rows])
     rows = rows[np.argsort(-np.nan_to_num(rate, nan=-1.0))]
     rows = rows[np.all(np.isfinite(rows), axis=1)]
     if rows.size == 0:
-        return model.with_substeps(1, "sdirk")
-    return resolve_model(model, rows, xdot, dt, mask)
+        out = model.with_substeps(1, "sdirk", "implicit")
+    else:
+        out = resolve_model(model, rows[:1], xdot, dt, mask)
+    if cache is not None:
+        cache[key] = out
+    return out
 
 
 def _swarm_model(problem: JointProblem) -> AbstractModel:
@@ -747,6 +766,7 @@ def joint_fit(
     notes). `start`: node values and lag rate to be never worse than (e.g. the two-step laws);
     `swarm_stage=False` polishes `start` directly. Fills `info` and `timings` [s]."""
     coding, full = problem.coding, problem.full
+    policy: dict = {}  # the sub-step policy's answers (see `_resolved`)
     t0 = time.perf_counter()
     cands = []
     if swarm_stage:
@@ -768,7 +788,7 @@ def joint_fit(
                        eta))
     rms_best, name, nu_best, eta_best = min(scored, key=lambda s: (not np.isfinite(s[0]), s[0]))
     if m_rank is not problem.model:  # the chosen one with its own sub-steps
-        m = _resolved(problem, nu_best, eta_best, full)
+        m = _resolved(problem, nu_best, eta_best, full, policy)
         rms_best = float(total_rms_of(m, coding, jnp.asarray(nu_best), eta_best, full))
     info["start_rms_N"] = {s[1]: s[0] for s in scored}
     info["polish_start"] = name
@@ -780,8 +800,13 @@ def joint_fit(
         nu_s, eta_s = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
         stages = []
         if problem.view is not None:
-            m_view = _resolved(problem, nu_s, float(eta_s), problem.view)
-            if not m_view.dynamic or m_view.scheme != "sdirk":
+            # a view samples its record at least as coarsely: where the full records need the
+            # L-stable scheme, so do the views (their own policy is not asked: 3-6 s)
+            m_full = _resolved(problem, nu_s, float(eta_s), full, policy)
+            stiff = m_full.dynamic and m_full.scheme == "sdirk"
+            m_view = None if stiff else _resolved(problem, nu_s, float(eta_s), problem.view,
+                                                  policy)
+            if m_view is not None and (not m_view.dynamic or m_view.scheme != "sdirk"):
                 stages.append(("view", problem.view, tol, int(polish_steps), m_view))
             else:
                 # measured on the UTFSM tests and Spencer's known answer: the coupled laws'
@@ -791,13 +816,15 @@ def joint_fit(
                 info["polish_view_skipped"] = (
                     "the views' optimum of the coupled laws can lie in another basin than the "
                     "full records'")
-        full_tol = tol * (FULL_TOL_FACTOR if stages else 1.0)
+        # after the views, a refinement; else the search from the start, which stops where the
+        # per-test search on the views does
+        full_tol = tol * (FULL_TOL_FACTOR if stages else VIEW_TOL_FACTOR)
         stages.append(("full", full, full_tol, int(polish_steps), None))
         for stage, data, stage_tol, stage_steps, m in stages:
             t2 = time.perf_counter()
             if m is None:
                 nu_s, eta_s = coding.from_bounded(jnp.asarray(z))
-                m = _resolved(problem, np.asarray(nu_s), float(eta_s), data)
+                m = _resolved(problem, np.asarray(nu_s), float(eta_s), data, policy)
             z_new, rms_new, steps, code = polish_unknowns(
                 m, coding, data, jnp.asarray(z), jnp.asarray(lo_b), jnp.asarray(hi_b),
                 stage_steps, jnp.asarray(stage_tol, float))
@@ -809,7 +836,7 @@ def joint_fit(
                 z = z_new
             timings[f"polish_{stage}"] = time.perf_counter() - t2
         nu_p, eta_p = (np.asarray(a) for a in coding.from_bounded(jnp.asarray(z)))
-        m = _resolved(problem, nu_p, float(eta_p), full)
+        m = _resolved(problem, nu_p, float(eta_p), full, policy)
         rms_p = float(total_rms_of(m, coding, jnp.asarray(nu_p), float(eta_p), full))
         info["polish_rms_N"] = rms_p
         if np.isfinite(rms_p) and rms_p <= rms_best:
@@ -822,7 +849,7 @@ def joint_fit(
                        rms=rms_best)
     if uncertainty and coding.n_free:
         t3 = time.perf_counter()
-        m = _resolved(problem, nu_best, eta_best, full)
+        m = _resolved(problem, nu_best, eta_best, full, policy)
         se, ok, dof, sigma = law_uncertainty(m, coding, full,
                                              jnp.asarray(coding.free_of(nu_best, eta_best)))
         out = dataclasses.replace(out, stderr=np.asarray(se), identifiable=np.asarray(ok),

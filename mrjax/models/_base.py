@@ -23,7 +23,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
-from ._integrate import ODE, SCHEMES, integrate, integrate_step
+from ._integrate import ODE, SCHEMES, TANGENTS, integrate, integrate_step
 from ._substeps import TRACED_SUBSTEPS, choose_substeps, max_abs
 
 
@@ -51,6 +51,9 @@ class AbstractModel(eqx.Module):
         automatically (see `mrjax.models.resolve_model`).
     - `scheme`: `"rk4"`, `"sdirk"` (L-stable) or `None` (automatic); see
         `mrjax.models.integrate`.
+    - `tangent`: how the `"sdirk"` scheme is differentiated, `"exact"` or `"implicit"` (the
+        cheaper Jacobian a polish uses; see `mrjax.models.integrate`); `None` is `"exact"`
+        (`mrjax.models.resolve_model` sets `"implicit"` for a polish). Values are the same.
     """
 
     name: ClassVar[str]
@@ -70,6 +73,7 @@ class AbstractModel(eqx.Module):
 
     substeps: int | None = eqx.field(static=True, default=None)
     scheme: str | None = eqx.field(static=True, default=None)
+    tangent: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.substeps is not None and (int(self.substeps) != self.substeps or self.substeps < 1):
@@ -77,6 +81,9 @@ class AbstractModel(eqx.Module):
         if self.scheme is not None and self.scheme not in SCHEMES:
             raise InputError(f"scheme must be one of {', '.join(SCHEMES)} or None, got "
                              f"{self.scheme!r}")
+        if self.tangent is not None and self.tangent not in TANGENTS:
+            raise InputError(f"tangent must be one of {', '.join(TANGENTS)} or None, got "
+                             f"{self.tangent!r}")
 
     # ----------------------------------------------------------------------------- metadata
     @property
@@ -131,10 +138,12 @@ class AbstractModel(eqx.Module):
             )
         return np.array([float(values[n]) for n in self.param_names])
 
-    def with_substeps(self, substeps: int | None, scheme: str | None = None) -> AbstractModel:
+    def with_substeps(self, substeps: int | None, scheme: str | None = None,
+                      tangent: str | None = None) -> AbstractModel:
         """Return a copy with a fixed sub-step count and integration scheme (`"rk4"`, the
-        default for a fixed count, or `"sdirk"`), or `None` for automatic."""
-        return type(self)(substeps=substeps, scheme=scheme)
+        default for a fixed count, or `"sdirk"`), or `None` for automatic; `tangent` how
+        `"sdirk"` is differentiated (`"exact"`, the default, or `"implicit"`)."""
+        return type(self)(substeps=substeps, scheme=scheme, tangent=tangent)
 
     # ----------------------------------------------------------------------------- dynamics
     def stiffness(self, theta: ArrayLike, vmax: float) -> float:
@@ -225,7 +234,8 @@ class AbstractModel(eqx.Module):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         m, scheme = self.integration(theta, xdot, dt)
         return integrate(ode.rhs, ode.initial(x[0], xdot[0]), theta, x, xdot, dt, m,
-                         scheme=scheme, linearize=ode.linearize, box=ode.box, flow=ode.flow)
+                         scheme=scheme, linearize=ode.linearize, box=ode.box, flow=ode.flow,
+                         tangent=self.tangent or "exact")
 
     def initial_state(self, x0: ArrayLike, v0: ArrayLike) -> Array:
         """The state (S,) at the first sample of a record starting at `x0` [m], `v0` [m/s]."""
@@ -240,7 +250,8 @@ class AbstractModel(eqx.Module):
         ode = self.ode()
         m, scheme = self.integration(theta, jnp.stack([jnp.asarray(v0), jnp.asarray(v1)]), dt)
         return integrate_step(ode.rhs, state, theta, x0, x1, v0, v1, dt, m, scheme=scheme,
-                              linearize=ode.linearize, box=ode.box, flow=ode.flow)
+                              linearize=ode.linearize, box=ode.box, flow=ode.flow,
+                              tangent=self.tangent or "exact")
 
     def force_at(self, theta: ArrayLike, state: ArrayLike, x: ArrayLike,
                  xdot: ArrayLike) -> Array:

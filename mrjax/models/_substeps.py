@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
+import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -34,6 +36,11 @@ MAX_SUBSTEPS = 256
 #: Sub-steps used when `substeps=None` but the inputs are traced (inside `jit`/`vmap`), so no
 #: stiffness estimate can be made. `mrjax.fit` always resolves the count on the host instead.
 TRACED_SUBSTEPS = 8
+#: How the L-stable scheme of a resolved model is differentiated: by the implicit-function
+#: theorem on its stage equations (`mrjax.models.integrate`, `tangent`), about 3 x cheaper
+#: than through the Newton iterates and as good for a Levenberg-Marquardt step or a std-error.
+IMPLICIT = "implicit"
+
 #: Deprecated (one release): the swarm now integrates with the L-stable scheme, one step per
 #: sample (see :func:`resolve_model`); passing this as `cap` selects that policy.
 SWARM_MAX_SUBSTEPS = 8
@@ -77,10 +84,12 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
         `rk4_limit` (RK4 and its Jacobian are cheapest there: the UTFSM fits need 1-6);
         above, the L-stable scheme with the count m found by step doubling
         (:func:`doubled_substeps`: force NRMSE between m and 2m steps below
-        `DOUBLING_TOL / 2.5`), unless RK4's count is still at most `rk4_limit` x m (a model's
-        `rk4_limit` is about the RK4 sub-steps whose Jacobian pass costs one L-stable
-        sub-step's: MBW, one Jacobian on the 30 UTFSM tests: RK4 at 6 sub-steps 1.6 s,
-        SDIRK at 1 / 2 sub-steps 2.4 / 4.7 s).
+        `DOUBLING_TOL / 2.5`) and the implicit tangent (`IMPLICIT`), unless RK4's count is
+        still at most `rk4_limit` x m (RK4 is the more accurate; one MBW Jacobian on 4,000
+        samples: RK4 at 1 / 2 / 4 / 8 sub-steps 5.8 / 13 / 23 / 44 ms, the L-stable scheme at
+        1 / 2 sub-steps 8.9 / 19 ms with the implicit tangent, 28 / 59 ms through its Newton
+        iterates: MBW's `rk4_limit` is 2; the 30 UTFSM tests' polish stage took 19.5 s with
+        8, 17.2 s with 2).
 
     A closed-form model (Dahl) takes one exact step per sample in every case.
 
@@ -91,31 +100,49 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
     - `rows`: parameter rows (N, P) or one vector (P,), SI units (the box corners of a swarm,
         the found parameters of a polish). For the step doubling, rows that match the data
         rows (N = C of a (C, T) `xdot`) are each integrated on their own record.
-    - `xdot` [m/s], `dt` [s]: velocity and sample intervals of the data, (T,) or (C, T).
-    - `mask`: which entries of `xdot`/`dt` are real samples (default all), e.g. `batch.mask`.
+    - `xdot` [m/s], `dt` [s]: velocity and sample intervals of the data, (T,) or (C, T); or
+        a tuple of such arrays, groups of records of different lengths (each group's records
+        are integrated side by side for the step doubling, and the largest count is taken).
+    - `mask`: which entries of `xdot`/`dt` are real samples (default all), e.g. `batch.mask`
+        (a tuple with groups).
     - `swarm`: the swarm's policy (above).
     - `cap`: deprecated (one release): a cap means a swarm.
 
-    **Returns:** `model.with_substeps(m, scheme)`.
+    **Returns:** `model.with_substeps(m, scheme)`, with the L-stable scheme's `tangent`
+    `IMPLICIT` (its values are the same; its Jacobian costs about a third).
     """
     if not model.dynamic or model.substeps is not None:
         return model
     if swarm or cap is not None:
-        return model.with_substeps(1, "sdirk")
-    v = np.asarray(xdot, float)
-    h = np.broadcast_to(np.asarray(dt, float), v.shape) if np.ndim(dt) else np.asarray(dt, float)
-    if mask is not None:
-        m = np.asarray(mask, bool)
-        v = np.where(m, v, 0.0)
-        h = np.where(m, h, 0.0)
+        return model.with_substeps(1, "sdirk", IMPLICIT)
+    groups = isinstance(xdot, (tuple, list))
+    xdots, dts = (tuple(xdot), tuple(dt)) if groups else ((xdot,), (dt,))
+    masks = tuple(mask) if groups and mask is not None else (mask,) * len(xdots)
+    vmax = hmax = 0.0
+    for xd, d, mk in zip(xdots, dts, masks):
+        v = np.asarray(xd, float)
+        h = np.broadcast_to(np.asarray(d, float), v.shape) if np.ndim(d) else np.asarray(d, float)
+        if mk is not None:
+            keep = np.asarray(mk, bool)
+            v = np.where(keep, v, 0.0)
+            h = np.where(keep, h, 0.0)
+        vmax, hmax = max(vmax, max_abs(v)), max(hmax, max_abs(h))
     rows = np.atleast_2d(np.asarray(rows, float))
-    n = model.resolve_substeps(rows, v, h)
+    n = model.resolve_substeps(rows, vmax, hmax)
     if n <= model.rk4_limit:
         return model.with_substeps(n, "rk4")
-    m = doubled_substeps(model, rows, xdot, dt)
+    m = max(doubled_substeps(model, rows, xd, d, mask=mk) for xd, d, mk in zip(xdots, dts, masks))
     if n <= model.rk4_limit * m:  # RK4's Jacobian pass is still the cheaper one
         return model.with_substeps(n, "rk4")
-    return model.with_substeps(m, "sdirk")
+    return model.with_substeps(m, "sdirk", IMPLICIT)
+
+
+@eqx.filter_jit
+def _forces(model, rows, x, v, h):
+    """Forces of every record (C, T) with its parameter row (C, P), compiled once per model
+    integration and shape (eagerly, the step doubling on the 30 UTFSM tests took 2.5 s warm
+    instead of 0.3 s)."""
+    return jax.vmap(model.force)(rows, x, v, h)
 
 
 #: Target force NRMSE of the step doubling of :func:`doubled_substeps` (against the exact
@@ -124,7 +151,7 @@ DOUBLING_TOL = 1e-3
 
 
 def doubled_substeps(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
-                     *, m_max: int = 64) -> int:
+                     mask: ArrayLike | None = None, *, m_max: int = 64) -> int:
     """Sub-steps of the L-stable scheme by step doubling: starting from 1, the count is doubled
     until the force NRMSE (RMS difference / max|F|) between m and 2m steps is at most
     `DOUBLING_TOL / 2.5` on the data (measured over 135 cases, the estimate is 0.4-2.1 times
@@ -132,10 +159,10 @@ def doubled_substeps(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
     three forward integrations (no Jacobian).
 
     **Arguments:** `model`; `rows` (C, P) matching the records of `xdot` (C, T), or any rows
-    (the first is used on every record); `xdot` [m/s], `dt` [s] (T,) or (C, T); `m_max`.
+    (the first is used on every record); `xdot` [m/s], `dt` [s] (T,) or (C, T); `mask` the
+    real samples (default all): only they are compared (a padded record's jump to zero
+    velocity after its end asked for 8 sub-steps where the record needs 1-2); `m_max`.
     """
-    import jax  # the host policy otherwise needs no JAX; here it integrates
-
     rows = np.atleast_2d(np.asarray(rows, float))
     v = np.atleast_2d(np.asarray(xdot, float))
     h = np.broadcast_to(np.asarray(dt, float), np.shape(xdot))
@@ -144,16 +171,16 @@ def doubled_substeps(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
         rows = np.broadcast_to(rows[:1], (v.shape[0], rows.shape[1]))
     x = np.cumsum(v * h, axis=1)  # a displacement consistent with xdot (the force's x terms
     # cancel in the difference of two integrations of the same record)
+    real = np.ones(v.shape, bool) if mask is None else np.broadcast_to(
+        np.atleast_2d(np.asarray(mask, bool)), v.shape)
 
     def force(m):
-        mod = model.with_substeps(m, "sdirk")
-        f = jax.vmap(mod.force)(rows, x, v, h)
-        return np.asarray(f, float)
+        return np.asarray(_forces(model.with_substeps(m, "sdirk"), rows, x, v, h), float)
 
     m, F = 1, force(1)
     while 2 * m <= m_max:
         F2 = force(2 * m)
-        ok = np.isfinite(F) & np.isfinite(F2)
+        ok = np.isfinite(F) & np.isfinite(F2) & real
         scale = np.max(np.abs(F2[ok])) if ok.any() else 0.0
         est = float(np.sqrt(np.mean((F[ok] - F2[ok]) ** 2)) / scale) if scale > 0 else 0.0
         if est <= DOUBLING_TOL / 2.5:
