@@ -479,8 +479,9 @@ def polish_unknowns(model, coding, data, z0, lower, upper, max_steps, tol):
     stacked residuals of every record: the variables run in the MINUIT/lmfit map
     $z = l + (h - l)(\\sin w + 1)/2$ of their box `[lower, upper]`, as the per-condition
     polish (`mrjax.refine.polish`); a start on a bound is moved inside by `BOUND_NUDGE`.
-    Dynamic models materialise the Jacobian by forward mode (`lm_solve(jacobian="forward")`).
-    Returns `(z, total RMS [N], steps, status code)`."""
+    Each variable is scaled by the residuals' sensitivity to moving it across its box at the
+    start (`lm_solve(scale=)`). Dynamic models materialise the Jacobian by forward mode
+    (`lm_solve(jacobian="forward")`). Returns `(z, total RMS [N], steps, status code)`."""
     half = 0.5 * (upper - lower)
     z0 = jnp.clip(z0, lower + BOUND_NUDGE * (upper - lower), upper - BOUND_NUDGE * (upper - lower))
     w0 = jnp.arcsin(jnp.clip((z0 - lower) / jnp.where(half > 0, half, 1.0) - 1.0, -1.0, 1.0))

@@ -24,13 +24,16 @@ its sample.
     $|z| \le (\delta/(\beta+\gamma))^{1/n}$): this removes the Newton overshoot from z = 0 and a
     2-cycle on the kinked right-hand side, without changing the solution. One step per sample
     keeps the force NRMSE against LSODA (rtol 1e-10) at or below 1.2e-3 for Spencer's set at 0,
-    1 and 2.25 V and the other test sets at 1 and 5 kHz (measured, `tests/test_models.py`,
-    benchmarks/integrator.md); every particle of a default box stays finite.
+    1 and 2.25 V and the other test sets at 1 and 5 kHz (measured: `pytest -s
+    tests/test_models.py -k lsoda` prints the table); every particle of a default box stays
+    finite.
 - A model with a closed-form update per interval (`flow`, Dahl) uses it instead of either.
 
 Both are differentiable (forward and reverse mode agree with central finite differences to
-< 1e-9 in float64) and never raise: parameters that make the state diverge give non-finite
-values, which the fitness maps to `inf`.
+< 1e-9 in float64; the cheaper `tangent="implicit"` of the L-stable scheme, which the sub-step
+policy gives a polish, differs by the last Newton correction, see :func:`integrate`) and never
+raise: parameters that make the state diverge give non-finite values, which the fitness maps
+to `inf`.
 """
 
 from __future__ import annotations
