@@ -321,8 +321,9 @@ def test_utfsm_held_out_currents_tanh_joint(utfsm):
 @pytest.mark.slow
 @needs_slow
 def test_utfsm_held_out_currents_modified_bouc_wen(utfsm):
-    """About 45 min on 2 busy cores. The per-test polish of this stiff model on 18 long
-    records alone took over an hour, so the swarm's per-test parameters are generalized. They
+    """About 1 min on 2 cores (62 s measured; 45 min before the dynamic-model work). The
+    per-test polish of this stiff model on 18 long records once took over an hour, so the
+    swarm's per-test parameters are generalized. They
     scatter wildly between motions (many on their bounds), so the two-step averages are useless
     here (55 % held-out); the joint fit reaches 11.0 % (measured with these settings)."""
     _, gm, ev = _held_out(utfsm, "modified_bouc_wen", "joint",
