@@ -707,8 +707,8 @@ def _resolved(problem: JointProblem, nu, eta, data: tuple[Rows, ...],
                          for r in rows])
     rows = rows[np.argsort(-np.nan_to_num(rate, nan=-1.0))]
     rows = rows[np.all(np.isfinite(rows), axis=1)]
-    if rows.size == 0:
-        out = model.with_substeps(1, "sdirk", "implicit")
+    if rows.size == 0:  # no law gives finite parameters: the policy that needs no estimate
+        out = _swarm_model(problem)
     else:
         out = resolve_model(model, rows[:1], xdot, dt, mask)
     if cache is not None:

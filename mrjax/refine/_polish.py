@@ -115,7 +115,8 @@ class Polished(eqx.Module):
 #: records stops at this multiple of the tolerance, or after `FULL_MAX_STEPS` steps: from the
 #: view's optimum the full records need only a refinement (measured on the 30 UTFSM tests,
 #: modified Bouc-Wen: it lowers the RMS by 0.02 % (median), 0.23 % at most, 95 % of that in
-#: the first 4 steps). Used by `mrjax.fit` and the joint laws of `mrjax.generalize`.
+#: the first 4 steps). Used by `mrjax.fit`; the joint laws of `mrjax.generalize` use the
+#: factor (their coupled refinement has no step cap).
 FULL_TOL_FACTOR = 100.0
 FULL_MAX_STEPS = 4
 #: The polish on the views stops at this multiple of the tolerance: the full records' refinement
