@@ -17,6 +17,7 @@ import math
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -320,15 +321,12 @@ def make_batch(
     fdt = dtype if dtype is not None else jnp.zeros(()).dtype
 
     def meta(name):
-        return jnp.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
+        return np.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
 
-    return Batch(
-        **{k: jnp.asarray(v, dtype=fdt) for k, v in out.items()},
-        mask=jnp.asarray(mask),
-        current=meta("current"),
-        frequency=meta("frequency"),
-        amplitude=meta("amplitude"),
-        command_kind=jnp.asarray(kind),
-        estimated=jnp.asarray(estimated),
-        labels=tuple(c.label for c in conditions),
-    )
+    # host arrays moved to the device as they are (`device_put` transfers; `jnp.asarray` of a
+    # host array would compile a program per shape)
+    return Batch(**jax.device_put(dict(
+        **{k: np.asarray(v, dtype=fdt) for k, v in out.items()},
+        mask=np.asarray(mask), current=meta("current"), frequency=meta("frequency"),
+        amplitude=meta("amplitude"), command_kind=np.asarray(kind),
+        estimated=np.asarray(estimated))), labels=tuple(c.label for c in conditions))

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..pso import swarm as run_pso
+from .. import pso
 from ._problem import AbstractProblem, SwarmOutcome, SwarmSetup
 from ._settings import Swarm
 
@@ -72,7 +72,7 @@ def swarm_result(setup: SwarmSetup, settings: Swarm, key: Any, *,
     params = settings.params if settings.params is not None else setup.params
     if settings.generations is not None:
         params = eqx.tree_at(lambda p: p.criterion, params, jnp.asarray(False))
-    return run_pso(setup.objective, setup.lower, setup.upper, setup.data, key=key,
+    return pso.swarm(setup.objective, setup.lower, setup.upper, setup.data, key=key,
                    params=params, n_particles=settings.n_particles,
                    max_generations=settings.generation_cap, callback=callback,
                    dtype=settings.dtype, page_size=setup.page_size)

@@ -47,7 +47,6 @@ import sys
 import time
 from typing import Any
 
-import jax
 import numpy as np
 
 from .._errors import InputError
@@ -146,10 +145,8 @@ def fit_in_chunks(
     C = whole.n_real
     k = run.swarm.restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
-    key = run.key
-    if key is None:  # from the seed, split once for the whole batch
-        key = jax.random.key(int(run.seed))
-    keys = condition_keys(key, k * C)
+    # one stream per swarm row, split once for the whole batch (from the seed without a key)
+    keys = condition_keys(int(run.seed) if run.key is None else run.key, k * C)
     plan = _plan(whole, run, n_dev, max_memory, chunk_size)
     jr = None
     if journal is not None and (resume or plan.n_chunks > 1):  # one chunk: nothing to resume
@@ -160,7 +157,7 @@ def fit_in_chunks(
                              f"do not divide over {n_dev} devices")
     done = jr.finished(whole.model) if jr is not None else {}
     view_length = whole.view.batch.length if whole.view is not None else None
-    rows_keys = keys.reshape(k, C)
+    rows_keys = keys.reshape(k, C, 2)
     parts: list[FitResult] = []
     bar = _bar(run.progress, plan)
     try:
@@ -175,7 +172,8 @@ def fit_in_chunks(
             chunk, _ = take_conditions(whole.source, rows)
             chunk, _, n = pad_conditions(chunk, None, plan.size)
             padded = np.concatenate([rows, np.full(plan.size - n, rows[-1])])
-            chunk_run = dataclasses.replace(run, key=rows_keys[:, padded].reshape(-1))
+            chunk_keys = rows_keys[:, padded].reshape(k * plan.size, 2)
+            chunk_run = dataclasses.replace(run, key=chunk_keys)
             res = fit_chunk(whole.model, chunk, chunk_run, view_length=view_length,
                             checked=True)
             res = res.subset(np.arange(n)) if res.n_conditions != n else res
