@@ -51,7 +51,7 @@ import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, as_batch
-from ..engine import Polish, Swarm
+from ..engine import Polish, Swarm, row_keys
 from ..models import AbstractModel, get
 from ..parallel import pad_conditions, resolve_devices, take_conditions
 from ._journal import Journal, fingerprint
@@ -63,7 +63,6 @@ from ._plan import (
     ChunkPlan,
     available_memory,
     condition_bytes,
-    condition_keys,
     current_rss,
     parse_memory,
     plan_chunks,
@@ -146,7 +145,7 @@ def fit_in_chunks(
     k = run.swarm.restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
     # one stream per swarm row, split once for the whole batch (from the seed without a key)
-    keys = condition_keys(int(run.seed) if run.key is None else run.key, k * C)
+    keys = row_keys(int(run.seed) if run.key is None else run.key, k * C)
     plan = _plan(whole, run, n_dev, max_memory, chunk_size)
     jr = None
     if journal is not None and (resume or plan.n_chunks > 1):  # one chunk: nothing to resume

@@ -4,12 +4,10 @@ the condition axis and every condition's random stream (see `mrjax.fitting._chun
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import os
 import re
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
@@ -250,30 +248,3 @@ def plan_chunks(
                      int(resident))
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def _split(key, n: int):
-    return jax.random.key_data(jax.random.split(key, n))
-
-
-@functools.partial(jax.jit, static_argnums=1)
-def _split_seed(seed, n: int):
-    return jax.random.key_data(jax.random.split(jax.random.key(seed), n))
-
-
-def condition_keys(key: Any, n: int) -> np.ndarray:
-    """`n` per-row keys as raw key data (n, 2) uint32 on the host: `jax.random.split(key, n)` of
-    one key (an int seed, a typed key or a raw (2,) uint32 key), or `key` itself when it
-    already holds `n` keys. Row i's key does not depend on `n` (JAX's partitionable threefry,
-    the default), so a fit's streams are those the whole batch gives its rows, whatever the
-    chunking; raw keys draw what the typed keys draw. One compiled program."""
-    if isinstance(key, (int, np.integer)):
-        return np.asarray(_split_seed(int(key), n))
-    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
-    single = np.ndim(key) == (0 if typed else 1)
-    if single:
-        return np.asarray(_split(key if typed else np.asarray(key, np.uint32), n))
-    data = np.asarray(jax.random.key_data(key) if typed else key)
-    if data.shape[0] != n:
-        raise InputError(f"key: got {data.shape[0]} keys for {n} swarm rows (conditions x "
-                         f"restarts); pass one key or one per row")
-    return data
