@@ -231,7 +231,9 @@ class JointObjective(AbstractObjective):
                                   cols(self.ls_cols[self.n_basis:]), b, rows.force, rows.mask)
         return jax.tree.map(lambda a: jnp.sum(a, axis=0), gr)
 
-    def _solve(self, position, data):
+    def solve(self, position, data):
+        """`(nu, eta, total RMS [N])` of a swarm position: its node values with the linear
+        laws' solved by least squares, the lag rate, and the RMS over every record."""
         nu, eta = self.coding.from_position(position)
         laws = self.coding.lawset(nu)
         gr = None
@@ -247,10 +249,10 @@ class JointObjective(AbstractObjective):
         return nu, eta, rms
 
     def __call__(self, position, data):
-        return self._solve(position, data)[2]
+        return self.solve(position, data)[2]
 
     def to_params(self, position, data):
-        nu, eta, _ = self._solve(position, data)
+        nu, eta, _ = self.solve(position, data)
         return jnp.concatenate([nu, jnp.reshape(eta, (1,))])
 
 
@@ -282,7 +284,7 @@ def coefficients_of(coding: Coding, nu) -> Array:
 @eqx.filter_jit
 def objective_at(obj: JointObjective, position, data):
     """`(nu, eta, total RMS [N])` of one swarm position (jitted)."""
-    return obj._solve(position, data)
+    return obj.solve(position, data)
 
 
 def joint_residuals(model: AbstractModel, coding: Coding, nu, eta, data: tuple[Rows, ...]):

@@ -113,7 +113,7 @@ class LawResidual(eqx.Module):
 @eqx.filter_jit
 def _positions(obj: JointObjective, position, data):
     """`(nu, eta, RMS [N])` of every swarm row's best position (R, D) on its data."""
-    return jax.vmap(obj._solve)(position, data)
+    return jax.vmap(obj.solve)(position, data)
 
 
 @eqx.filter_jit
