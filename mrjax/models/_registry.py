@@ -320,7 +320,9 @@ def from_source(name: str, source: Mapping[str, Any] | None = None) -> AbstractM
     kind = source.get("kind")
     if key in reserved_names() or key in _USER or key in _entry_points():
         return get(key)
-    hint = "pass the model: --model path/to/file.py:NAME (model= in Python)"
+    stem = Path(str(source.get("file") or "file.py")).name if kind == "file" else "file.py"
+    hint = (f"pass the model: --model path/to/{stem}:{source.get('object') or 'NAME'} "
+            f"(model= in Python)")
     where = describe_source(source) if kind else "an unrecorded place"
     if kind == "file":
         path = Path(str(source.get("file")))
