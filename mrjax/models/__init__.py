@@ -32,6 +32,7 @@ from ._registry import load as load
 from ._registry import names as names
 from ._registry import register as register
 from ._registry import source_of as source_of
+from ._registry import unregister as unregister
 from ._static import Bingham as Bingham
 from ._static import Kwok as Kwok
 from ._substeps import MAX_SUBSTEPS as MAX_SUBSTEPS

@@ -146,6 +146,12 @@ def register(model: AbstractModel | type, *, source: Mapping[str, Any] | None = 
     return model
 
 
+def unregister(name: str) -> None:
+    """Forget a model registered in this process (:func:`register`, or loaded from a file,
+    module or entry point); the built-in models stay. Unknown names are ignored."""
+    _USER.pop(str(name).strip().lower(), None)
+
+
 def _as_model(value: Any, where: str) -> AbstractModel:
     if isinstance(value, AbstractModel):
         return value
