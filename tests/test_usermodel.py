@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 from helpers import one_error_line
 from helpers import run_cli as run
 
@@ -273,13 +274,26 @@ def _literature_case(name, motions, rate=500.0, noise=0.01):
 @pytest.mark.parametrize("name", ["lugre", "herschel_bulkley", "polynomial"])
 def test_literature_model_known_answer(name):
     """Each literature model recovers its reference parameters (`REFERENCE_PARAMS`) from
-    noisy simulated sine records (1 % noise): every parameter within 2 std-errors or 5 %."""
+    noisy simulated sine records (1 % noise): every parameter within 2 std-errors or 5 %.
+
+    The polynomial's reference set has six coefficients near zero (those the loop's symmetry
+    leaves out: |value| < 5 std-errors), which no fit can place within 5 %; with 14 correlated
+    coefficients, each within 2 std-errors is a coin toss, so those are checked jointly: their
+    Mahalanobis distance is within the 99.9 % chi-square quantile."""
     m, th, batch = _literature_case(name, ((2.0, 0.008), (1.0, 0.012)))
     r = mrjax.fit(m, batch, seed=0, **FAST)
     for i in range(batch.n_conditions):
-        ok = within(r.theta[i], th, r.stderr[i])
-        print(name, dict(zip(m.param_names, np.round((r.theta[i] - th) / r.stderr[i], 2))))
+        se = r.stderr[i]
+        small = np.abs(th) < 5.0 * se
+        ok = within(r.theta[i], th, se) | small
+        print(name, dict(zip(m.param_names, np.round((r.theta[i] - th) / se, 2))))
         assert ok.all(), [n for n, g in zip(m.param_names, ok) if not g]
+        if small.any():
+            cov = r.corr[i] * se[:, None] * se[None, :]
+            d = (r.theta[i] - th)[small]
+            d2 = float(d @ np.linalg.solve(cov[np.ix_(small, small)], d))
+            assert d2 <= scipy.stats.chi2.ppf(0.999, small.sum()), d2
+        assert name == "polynomial" or not small.any()
     assert np.all(r.nrmse < 0.02)
 
 
@@ -306,7 +320,7 @@ def test_fit_modes_with_a_declared_model(tanh_case):
     for i in range(3):
         assert within(fit.theta[i], truth[i], fit.stderr[i]).all(), i
     full = mrjax.fit(m, batch, seed=0, method="pso", swarm_mode="full", **FAST)
-    assert np.all(full.rms < 60.0)
+    assert np.all(np.isfinite(full.rms)) and np.all(full.rms >= fit.rms * 0.999)
     lm = mrjax.fit(m, batch, seed=0, method="lm", uncertainty=False)
     assert lm.swarm_mode == "none" and np.all(np.isfinite(lm.rms))
     chunked = mrjax.fit(m, batch, seed=0, restarts=2, chunk_size=2, **FAST)
@@ -349,37 +363,43 @@ def test_compare_counts_the_declaration(tanh_case):
 
 
 def test_cli_fit_generalize_and_predict_in_a_new_process(tanh_case, tmp_path):
-    """`mrjax fit DATA --model mine.py:Tanh --generalize joint`, then `mrjax predict` in a new
-    process reloads the model from the file fit.json names; once the file has moved it says in
-    one line what to pass, and `--model` passes it. Bad files: exit 2, nothing written."""
+    """`mrjax fit DATA --model examples/my_models.py:Tanh --generalize two-step` (the options
+    of `tanh_case`, so its compiled fit is reused), then `mrjax predict` in a new process
+    reloads the model from the file fit.json names; once the file is gone it says in one line
+    what to pass, and `--model` passes it. Bad files: exit 2, nothing written. (`--generalize
+    joint` is the same laws' path as `test_laws_inverse_and_closed_loop_of_a_declared_model`;
+    the README shows it on the UTFSM tests.)"""
     _, _, _, conds, _ = tanh_case
     data = tmp_path / "data"
     data.mkdir()
     for c, name in zip(conds, ("8mm2Hz0A.txt", "8mm2Hz1A.txt", "8mm2Hz2A.txt")):
         np.savetxt(data / name, np.column_stack([c.t, c.x * 1e3, c.xdot * 1e3, c.force]))
-    shutil.copy(EXAMPLES, tmp_path / "mine.py")
     out = tmp_path / "fit"
-    code, stdout, err = run(["fit", data, "--model", f"{tmp_path}/mine.py:Tanh", "--generalize",
-                             "joint", "--particles", "20", "--max-generations", "20",
+    code, stdout, err = run(["fit", data, "--model", f"{EXAMPLES}:Tanh", "--generalize",
+                             "two-step", "--particles", "20", "--max-generations", "20",
                              "--restarts", "2", "--no-plots", "--out", out])
     assert code == 0, err
     doc = json.loads((out / "fit.json").read_text())
-    assert doc["model_source"]["file"] == str(tmp_path / "mine.py")
+    assert doc["model_source"]["file"] == EXAMPLES and doc["model_source"]["object"] == "Tanh"
     assert doc["generalized"]["model"] == "my_tanh"
-    unregister("my_tanh")
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     p = subprocess.run([sys.executable, "-m", "mrjax.cli", "predict", "--fit", str(out),
                         str(data / "8mm2Hz1A.txt"), "--no-plots", "--out", str(tmp_path / "p")],
                        capture_output=True, text=True, env=env, cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert json.loads((tmp_path / "p" / "predict.json").read_text())["model"] == "my_tanh"
-    (tmp_path / "mine.py").rename(tmp_path / "moved.py")
+    # the file is gone (fit.json now names a missing one) and this process forgot the model
+    unregister("my_tanh")
+    for block in (doc, doc["generalized"]):
+        block["model_source"]["file"] = str(tmp_path / "gone" / "mine.py")
+    (out / "fit.json").write_text(json.dumps(doc))
     code, _, err = run(["predict", "--fit", out, data, "--no-plots", "--out", tmp_path / "q"])
     assert code == 2 and "--model path/to/mine.py:Tanh" in one_error_line(err)
     assert not (tmp_path / "q").exists()
     code, _, err = run(["predict", "--fit", out, data, "--no-plots", "--out", tmp_path / "q",
-                        "--model", f"{tmp_path}/moved.py:Tanh"])
+                        "--model", f"{EXAMPLES}:Tanh"])
     assert code == 0, err
+    shutil.copy(EXAMPLES, tmp_path / "moved.py")
     (tmp_path / "bad.py").write_text("import nonexistent_module_xyz\n")
     for spec, message in (("bad.py:X", "does not import: ModuleNotFoundError"),
                           ("moved.py:Nope", "has no 'Nope'"), ("nofile.py:X", "not found")):
@@ -387,8 +407,6 @@ def test_cli_fit_generalize_and_predict_in_a_new_process(tanh_case, tmp_path):
                             tmp_path / "r"])
         assert code == 2 and message in one_error_line(err)
         assert not (tmp_path / "r").exists()
-    unregister("my_tanh")
-    unregister("my_bouc_wen")
 
 
 def test_models_command_lists_sources():
