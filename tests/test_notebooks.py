@@ -92,7 +92,7 @@ def test_pso_vs_polish():
 def test_your_own_model():
     out = text_of(execute("04_your_own_model.ipynb", {}))
     assert "derived: parameter-free regressors ('c', 'k', 'f0')" in out
-    assert "one line: model 'oops': parameters 'c' and 'beta' are declared linear" in out
+    assert "one line: model 'oops': parameter 'beta' is declared linear but the force" in out
     assert "k = {'kwok': 7, 'asym_tanh': 8}" in out
     assert "same force: largest difference" in out and "asym_tanh generalized" in out
     assert "registered: True" in out and "'kind': 'file'" in out

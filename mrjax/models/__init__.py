@@ -13,9 +13,9 @@ from ._base import safe_abs_pow as safe_abs_pow
 from ._bounds import box_corners as box_corners
 from ._bounds import check_bounds as check_bounds
 from ._bounds import check_box as check_box
+from ._declaration import Parameter as Parameter
+from ._declaration import Params as Params
 from ._declare import Model as Model
-from ._declare import Parameter as Parameter
-from ._declare import Params as Params
 from ._hysteretic import BoucWen as BoucWen
 from ._hysteretic import Dahl as Dahl
 from ._hysteretic import ModifiedBoucWen as ModifiedBoucWen
