@@ -198,7 +198,8 @@ class Declaration:
     def initial_at(self, x0, v0) -> Array:
         """The state (S,) at the first sample of a record."""
         x0 = jnp.asarray(x0)
-        dtype = jnp.result_type(x0, float)
+        # the record's float type (a float32 swarm stays float32), else the default float
+        dtype = x0.dtype if jnp.issubdtype(x0.dtype, jnp.floating) else jnp.result_type(float)
         if self.initial_value is None:
             return jnp.zeros((self.state_size,), dtype)
         if callable(self.initial_value):

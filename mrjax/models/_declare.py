@@ -48,6 +48,12 @@ from ._declaration import Declaration, Parameter, param_columns
 from ._integrate import ODE
 
 
+def _float_of(*arrays: Array):
+    """The float type of the records (float32 for a float32 swarm), else the default float."""
+    t = jnp.result_type(*arrays)
+    return t if jnp.issubdtype(t, jnp.floating) else jnp.result_type(float)
+
+
 def _pointwise(fn: Callable, theta: Array, x: Array, xdot: Array, states: Array):
     """`fn(theta_row, x, xdot, state)` at every sample of any leading shape: `theta` (P,) or
     (..., P), `x`, `xdot` (...), `states` (..., S)."""
@@ -178,7 +184,7 @@ class Model(AbstractModel):
     def _states(self, theta, x, xdot, dt):
         if self.dynamic:
             return self.states(theta, x, xdot, dt)
-        return jnp.zeros(x.shape + (0,), jnp.result_type(x, theta, float))
+        return jnp.zeros(x.shape + (0,), _float_of(x))
 
     def _split(self, theta, x, xdot, states):
         """`(Z, b)` at every sample: regressors of `varying_params` and the force with every
@@ -206,7 +212,7 @@ class Model(AbstractModel):
     def basis(self, x, xdot):
         d = self.declaration
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
-        dtype = jnp.result_type(x, xdot, float)
+        dtype = _float_of(x, xdot)
         fixed = [d.index[n] for n in d.fixed]
         if not fixed:
             return jnp.zeros(x.shape + (0,), dtype)
@@ -248,7 +254,7 @@ class Model(AbstractModel):
         theta = jnp.asarray(theta)
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         d = self.declaration
-        s = jnp.asarray(state) if self.dynamic else jnp.zeros((0,), jnp.result_type(x, float))
+        s = jnp.asarray(state) if self.dynamic else jnp.zeros((0,), _float_of(x))
         return d.force_at(param_columns(theta), x, xdot, s)
 
     def ode(self) -> ODE | None:
