@@ -29,7 +29,7 @@ from .._errors import InputError
 from ._integrate import integrate
 
 #: Random points at which a declaration is checked (fixed key: the same answer every time).
-CHECK_POINTS = 6
+CHECK_POINTS = 8
 #: Relative size of a second derivative below which the force counts as affine.
 LINEAR_TOL = 1e-7
 #: Reference records of the stiffness estimate: sine amplitudes [m], samples per period, periods.
@@ -269,19 +269,26 @@ class Declaration:
                                  f"({S},) or a scalar")
 
     def _points(self):
-        """`CHECK_POINTS` random instants (fixed key): parameters uniform in the default box
-        (log-uniform for log parameters), x in +-20 mm, xdot in +-0.2 m/s, state in +-1 (or
-        in the box where it is finite)."""
+        """`CHECK_POINTS` random instants (fixed seed): parameters uniform in the default box,
+        log-uniform for log parameters and where a positive box spans more than two decades;
+        |x| log-uniform in 10 um - 30 mm and |xdot| in 0.1 mm/s - 0.3 m/s, random signs (a
+        saturating function of a parameter times the velocity is then seen off its
+        plateau); the state in +-1, or in the box where it is finite."""
         rng = np.random.default_rng(20240901)
         K, S = CHECK_POINTS, self.state_size
         lo, hi = np.asarray(self.lower), np.asarray(self.upper)
         u = rng.uniform(size=(K, lo.size))
         th = lo + u * (hi - lo)
-        for n in self.log_params:
-            i = self.index[n]
-            th[:, i] = np.exp(np.log(lo[i]) + u[:, i] * (np.log(hi[i]) - np.log(lo[i])))
-        x = rng.uniform(-0.02, 0.02, K)
-        v = rng.uniform(-0.2, 0.2, K)
+        wide = (lo > 0) & (hi > 100.0 * lo)
+        for i in range(lo.size):
+            if self.param_names[i] in self.log_params or wide[i]:
+                th[:, i] = np.exp(np.log(lo[i]) + u[:, i] * (np.log(hi[i]) - np.log(lo[i])))
+
+        def signed_log(a, b):
+            return rng.choice((-1.0, 1.0), K) * np.exp(rng.uniform(np.log(a), np.log(b), K))
+
+        x = signed_log(1e-5, 0.03)
+        v = signed_log(1e-4, 0.3)
         s = rng.uniform(-1.0, 1.0, (K, S))
         if self.box_fn is not None and S:
             blo, bhi = jax.jit(jax.vmap(lambda t: self.box_at(param_columns(t))))(jnp.asarray(th))
