@@ -171,11 +171,8 @@ class Declaration:
         self.fingerprint = h.hexdigest()
         self._check_shapes()
         # the split of the linear parameters: parameter-free regressors (basis) first
-        fixed = self.linear
-        if check:
-            fixed = self._check_values()
-        elif self.state_size:
-            fixed = ()  # unchecked: every regressor is computed per particle (always right)
+        # unchecked: every regressor is computed per particle (right whatever it depends on)
+        fixed = self._check_values() if check else ()
         self.fixed = tuple(n for n in self.linear if n in fixed)
         self.varying = tuple(n for n in self.linear if n not in fixed)
         self._stiff_fn = None
