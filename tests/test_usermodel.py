@@ -325,8 +325,9 @@ def tanh_case():
 
 def test_fit_modes_with_a_declared_model(tanh_case):
     """Separable swarm + polish recovers the truth (2 std-errors or 5 %) with finite
-    std-errors; the paper's swarm, the polish alone, a chunked and a sharded fit run on it;
-    fit.json records where the model came from."""
+    std-errors; the paper's swarm, the polish alone and a chunked fit (whose journal keys on
+    the declaration) run on it, and with MRJAX_SLOW=1 a sharded one; fit.json records where
+    the model came from."""
     m, truth, batch, _, fit = tanh_case
     assert np.all(np.isfinite(fit.stderr))
     for i in range(3):
@@ -337,8 +338,9 @@ def test_fit_modes_with_a_declared_model(tanh_case):
     assert lm.swarm_mode == "none" and np.all(np.isfinite(lm.rms))
     chunked = mrjax.fit(m, batch, seed=0, restarts=2, chunk_size=2, **FAST)
     np.testing.assert_allclose(chunked.rms, fit.rms, rtol=1e-6)
-    sharded = mrjax.fit(m, batch, seed=0, restarts=2, devices="all", **FAST)
-    np.testing.assert_allclose(sharded.rms, fit.rms, rtol=1e-6)
+    if os.environ.get("MRJAX_SLOW") == "1":  # the sharding is the models' own (test_parallel)
+        sharded = mrjax.fit(m, batch, seed=0, restarts=2, devices="all", **FAST)
+        np.testing.assert_allclose(sharded.rms, fit.rms, rtol=1e-6)
     doc = json.loads(fit.to_json())
     assert doc["model"] == "my_tanh" and doc["model_source"]["kind"] == "file"
 
