@@ -182,6 +182,8 @@ class Declaration:
 
     # ----------------------------------------------------------------------- one instant
     def params(self, values: Sequence[Array]) -> Params:
+        """The parameters `values` (P arrays, SI units) by name, as the user's functions get
+        them."""
         return Params(values, self.index)
 
     def force_at(self, cols, x, v, s) -> Array:
@@ -206,6 +208,8 @@ class Declaration:
         return jnp.reshape(jnp.asarray(y0, dtype), (self.state_size,))
 
     def box_at(self, cols) -> tuple[Array, Array]:
+        """The declared box `(lower, upper)` of the state, each (S,), for parameter columns
+        `cols`."""
         lo, hi = self.box_fn(self.params(cols))
         S = (self.state_size,)
         return jnp.broadcast_to(jnp.asarray(lo), S), jnp.broadcast_to(jnp.asarray(hi), S)

@@ -87,7 +87,8 @@ class Model(AbstractModel):
     - `initial`: the state at the first sample, a function `initial(x0, v0) -> (S,)` of the
         first displacement [m] and velocity [m/s] or a constant (S,); default zeros.
     - `box`: optional `box(p) -> (lower, upper)`, each (S,) or scalar: a region the state
-        never leaves (+-inf allowed); the L-stable scheme clips its Newton iterates onto it.
+        never leaves (+-inf allowed; from the nonlinear parameters only); the L-stable scheme
+        clips its Newton iterates onto it.
     - `description`, `reference`: one line each, shown by `mrjax models`.
     - `check`: run the numerical checks (default True; they cost about a second). Without
         them every linear parameter's regressor is recomputed per particle.
