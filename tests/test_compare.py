@@ -182,7 +182,7 @@ def known():
                                   sample_rate=400.0, cycles=1.5, noise=NOISE,
                                   seed=100 + len(conds), label=f"{g}_{j}"))
     batch = make_batch(conds)
-    res = mrjax.compare(batch, models="all", generalize_methods=(), seed=0, **FAST)
+    res = mrjax.compare(batch, models=MODEL_NAMES, generalize_methods=(), seed=0, **FAST)
     return batch, res
 
 

@@ -97,7 +97,8 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="data files or directories (as `mrjax fit`)")
     p.add_argument("--models", default="all", metavar="all|NAME,...",
-                   help="models to compare, e.g. kwok,bouc_wen (default all)")
+                   help="models to compare, e.g. kwok,bouc_wen,path/to/mine.py:Mine (default "
+                   "all: every model of `mrjax models`)")
     held = p.add_mutually_exclusive_group()
     held.add_argument("--validate", nargs="+", metavar="FILE",
                       help="score the laws built on all FILES on these other tests, read with "

@@ -14,7 +14,7 @@ from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import fit_mask
 from ..fitting import fit
 from ..generalize import GeneralizedModel, generalize, identify
-from ..models import get
+from ..models import get, source_of
 from ._common import (
     DEFAULT_OUT,
     add_data_options,
@@ -205,7 +205,8 @@ def _run_identify(args, model, bounds, batch, out) -> int:
     ev = gm.evaluate(batch)
     conds = [{"label": lab, "rms_N": float(r), "nrmse": float(n)}
              for lab, r, n in zip(batch.labels, ev["rms"], ev["nrmse"])]
-    doc = {"model": model.name, "mrjax_version": __version__, "method": "identify",
+    doc = {"model": model.name, "model_source": source_of(model),
+           "mrjax_version": __version__, "method": "identify",
            "command_unit": gm.command_unit, "lag_1_s": gm.lag,
            "timings_s": gm.info.get("timings"), "conditions": conds,
            "generalized": gm.to_dict()}
@@ -238,9 +239,10 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
                    "the data options below)")
-    p.add_argument("--model", required=True, metavar="NAME",
-                   help="model name: bingham, kwok (tanh), bouc_wen, modified_bouc_wen, dahl "
-                   "(see `mrjax models`)")
+    p.add_argument("--model", required=True, metavar="NAME|FILE.py:NAME",
+                   help="model name: bingham, kwok (tanh), bouc_wen, modified_bouc_wen, dahl, "
+                   "lugre, herschel_bulkley, polynomial, an installed one (see `mrjax models`), "
+                   "or your own model in a Python file, path/to/file.py:Name")
     p.add_argument("--method", choices=("pso", "pso+lm", "lm"), default="pso+lm",
                    help="swarm, swarm then Levenberg-Marquardt polish (default), or polish alone")
     p.add_argument("--swarm", choices=("separable", "full"), default="separable",

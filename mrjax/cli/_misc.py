@@ -6,7 +6,7 @@ import argparse
 import importlib
 
 from .._tables import format_table
-from ..models import get, names
+from ..models import describe_source, get, names, source_of
 from ._common import DEFAULT_OUT, nonneg_int
 
 
@@ -19,19 +19,28 @@ def run_reproduce(args: argparse.Namespace) -> int:
 
 
 def run_models(args: argparse.Namespace) -> int:
-    """Print every model: parameters, units, default bounds, which are linear."""
+    """Print every model (and those of `--model`): where it comes from, its parameters, units,
+    default bounds and which are linear. A model that fails its checks is an error (exit 2)."""
     style = "markdown" if args.markdown else "plain"
     blocks = []
-    for name in names():
+    listed = list(names())
+    models = [get(spec) for spec in args.model or ()]  # loaded first: checked, registered
+    listed += [m.name for m in models if m.name not in listed]
+    for name in listed:
         m = get(name)
         lo, hi = m.bounds
         lin = set(m.linear_params)
         rows = [[p, u, float(a), float(b), p in lin]
                 for p, u, a, b in zip(m.param_names, m.units, lo, hi)]
         kind = "ODE (internal state)" if m.dynamic else "memoryless"
-        head = f"{name}  [{kind}]  {m.description}".rstrip()
+        source = describe_source(source_of(m))
+        ref = getattr(m, "reference", "")
+        head = f"{name}  [{kind}; {source}]  {m.description}".rstrip()
+        if ref:
+            head += f" ({ref})"
         if args.markdown:
-            head = f"### {name}\n\n{m.description} ({kind})\n"
+            head = (f"### {name}\n\n{m.description} ({kind}; {source}"
+                    + (f"; {ref}" if ref else "") + ")\n")
         blocks.append(head + "\n" + format_table(
             rows, ["parameter", "unit", "lower", "upper", "linear"], style=style, floatfmt="g"))
     print("\n\n".join(blocks))
@@ -53,4 +62,6 @@ def add_parsers(sub, common: argparse.ArgumentParser) -> None:
     p = sub.add_parser("models", parents=[common],
                        help="list models with parameters, units and default bounds")
     p.add_argument("--markdown", action="store_true", help="markdown tables")
+    p.add_argument("--model", action="append", metavar="FILE.py:NAME",
+                   help="also check and list your own model (repeatable)")
     p.set_defaults(func=run_models)

@@ -60,13 +60,15 @@ def _table(rows: list[dict], model: str) -> str:
     return table + f"\ngeneralized {model}: {len(rows)} conditions, median RMS {med:.2f} N"
 
 
-def _read_model(path: str) -> tuple[GeneralizedModel, str]:
+def _read_model(path: str, model: str | None = None) -> tuple[GeneralizedModel, str]:
     doc = read_fit_json(path)
     if "generalized" not in doc:
         raise InputError(f"{path}: this fit has no current-dependent laws ('generalized' "
                          f"block); {_GEN_HINT}")
     try:
-        gm = GeneralizedModel.from_dict(doc["generalized"])
+        block = dict(doc["generalized"])
+        block.setdefault("model_source", doc.get("model_source"))
+        gm = GeneralizedModel.from_dict(block, model=model)
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
     except (KeyError, TypeError, ValueError) as e:
@@ -77,7 +79,7 @@ def _read_model(path: str) -> tuple[GeneralizedModel, str]:
 def run(args: argparse.Namespace) -> int:
     """Run `mrjax predict` with parsed arguments; returns the exit code."""
     out = check_writable(args.out)
-    gm, model = _read_model(args.fit)
+    gm, model = _read_model(args.fit, args.model)
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)
@@ -120,6 +122,9 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="fit.json of `mrjax fit --generalize` (or its directory)")
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="data files or directories (any layout with the data options below)")
+    p.add_argument("--model", metavar="FILE.py:NAME",
+                   help="where the fitted model is, when it is not a model of this installation "
+                   "and fit.json's record of its file or module no longer finds it")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")

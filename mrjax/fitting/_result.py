@@ -17,7 +17,7 @@ from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
-from ..models import AbstractModel, resolve_model
+from ..models import AbstractModel, resolve_model, source_of
 
 
 def _finite_median(a: np.ndarray) -> float:
@@ -245,6 +245,7 @@ class FitResult:
             })
         doc = {
             "model": self.model.name,
+            "model_source": source_of(self.model),
             "method": self.method,
             "swarm": self.swarm_mode,
             "seed": int(self.seed),

@@ -21,7 +21,7 @@ from .._errors import InputError
 from .._io import json_safe
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch, as_batch, check_mask
-from ..models import AbstractModel, get, resolve_model
+from ..models import AbstractModel, from_source, get, resolve_model, source_of
 from ..objective import masked_rms, nrmse
 from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
 
@@ -424,6 +424,7 @@ class GeneralizedModel:
         out = {
             "method": self.method,
             "model": self.model.name,
+            "model_source": source_of(self.model),
             "total_rms_N": total,
             "current_range_A": rng if self.command_unit == "A" else None,
             "laws": {n: self.laws[n].to_dict() for n in self.param_names},
@@ -439,9 +440,13 @@ class GeneralizedModel:
         return json_safe(out)
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> GeneralizedModel:
+    def from_dict(cls, d: Mapping[str, Any], *, model: AbstractModel | None = None
+                  ) -> GeneralizedModel:
         """Inverse of :meth:`to_dict` (also accepts a whole `fit.json` with a `"generalized"`
-        block). Raises :class:`mrjax.InputError` for a malformed block."""
+        block). The model is found again from its name and recorded source
+        (`mrjax.models.from_source`: a user's model from its file or module), or given as
+        `model` (whose name must match). Raises :class:`mrjax.InputError` for a malformed
+        block, or one line saying what to pass when the model cannot be found."""
         if not isinstance(d, Mapping):
             raise InputError("generalized model must be a JSON object")
         if "generalized" in d and "laws" not in d:
@@ -453,7 +458,13 @@ class GeneralizedModel:
         rng = d.get("command_range") or d.get("current_range_A") or [0.0, 0.0]
         unit = d.get("command_unit") or "A"
         lag = d.get("lag_1_s")
-        return cls(model=get(d["model"]), laws=dict(d["laws"]),
+        if model is None:
+            model = from_source(d["model"], d.get("model_source"))
+        else:
+            model = get(model)
+            if model.name != str(d["model"]).strip().lower():
+                raise InputError(f"the laws are of model {d['model']!r}, not {model.name!r}")
+        return cls(model=model, laws=dict(d["laws"]),
                    method=d.get("method", "two-step"),
                    total_rms=float("nan") if total is None else float(total),
                    current_range=tuple(rng), weighting=d.get("weighting") or "",
