@@ -20,6 +20,7 @@ import pytest
 from helpers import MODEL_NAMES, TRUE_PARAMS
 
 import mrjax
+import mrjax.report
 from mrjax import InputError, cli
 from mrjax.comparison import information_criteria, n_free_parameters, plan_validation
 from mrjax.data import Condition, make_batch, paper_parameters, simulate
