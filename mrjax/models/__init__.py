@@ -17,6 +17,7 @@ from ._integrate import SCHEMES as SCHEMES
 from ._integrate import integrate as integrate
 from ._integrate import integrate_step as integrate_step
 from ._integrate import rk4_scan as rk4_scan
+from ._registry import aliases as aliases
 from ._registry import get as get
 from ._registry import names as names
 from ._static import Bingham as Bingham
