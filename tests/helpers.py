@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -367,3 +368,23 @@ def assert_same_polish(rms_a, rms_b, theta_a=None, theta_b=None, *,
     np.testing.assert_allclose(np.asarray(rms_a), np.asarray(rms_b), rtol=rms_rtol)
     if theta_a is not None:
         np.testing.assert_allclose(np.asarray(theta_a), np.asarray(theta_b), rtol=theta_rtol)
+
+
+def outputs(d) -> list[str]:
+    """The names of a command's outputs in directory `d`, sorted: every entry but the manifest
+    that says which command wrote them (`mrjax._io.MANIFEST`, checked in test_outputs.py)."""
+    from mrjax._io import MANIFEST
+
+    return sorted(p for p in os.listdir(d) if p != MANIFEST)
+
+
+def previous_output(d: Path, command: str = "fit", files: dict[str, bytes] | None = None) -> Path:
+    """Directory `d` as a previous run of `mrjax COMMAND` left it (its files and the manifest,
+    written by `mrjax._io.OutputDir`); default files: an old fit.json and loops.png."""
+    from mrjax._io import OutputDir
+
+    if files is None:
+        files = {"fit.json": b'{"previous": "run"}\n', "loops.png": PNG_MAGIC + b"old"}
+    with OutputDir(d, command) as out:
+        out.write(files)
+    return d

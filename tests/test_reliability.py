@@ -43,6 +43,7 @@ from helpers import (
     assert_same_polish,
     assert_same_swarms,
     draw_sine,
+    previous_output,
 )
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -415,10 +416,7 @@ def test_bad_input_cli(kind, build, needles, tmp_path):
     bad = build(tmp_path)
     out = bad.out
     if out is None:
-        out = tmp_path / "out"
-        out.mkdir()
-        (out / "fit.json").write_text('{"previous": "run"}\n')
-        (out / "loops.png").write_bytes(b"\x89PNG\r\n\x1a\nold")
+        out = previous_output(tmp_path / "out")
     argv = ["fit", *bad.files, "--model", bad.model, "--out", out, *bad.cli]
     before = snapshot(tmp_path)
     code, stdout, stderr = run(argv)
