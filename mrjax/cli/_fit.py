@@ -107,10 +107,13 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     say(f"writing {len(files)} files to {out.path}...")
     out.write(files)
     shutil.rmtree(journal, ignore_errors=True)  # the outputs hold everything it held
-    print(result.table(max_rows=args.max_rows))
+    print(result.table(max_rows=args.max_rows))  # ends with the per-test warnings
     if gm is not None:
         print()
         print(gm.summary())
+        for w in result.warnings(gm):
+            if w["kind"] == "too_few_currents":
+                print(f"warning: {w['message']}")
     return 0
 
 

@@ -376,6 +376,7 @@ def evaluate(p: Problem, sw: SwarmStage, pol: PolishStage, timings: dict[str, fl
         corr=np.full((C, P, P), np.nan) if unc is None else np.asarray(unc.corr, float),
         identifiable=np.ones((C, P), bool) if unc is None else np.asarray(unc.identifiable, bool),
         timings=timings, estimated=np.asarray(batch.estimated, bool),
+        bounds={"lower": np.asarray(p.lower, float), "upper": np.asarray(p.upper, float)},
     )
     return unpad(result, p.n_real) if result.n_conditions != p.n_real else result
 
