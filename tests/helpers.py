@@ -258,7 +258,7 @@ def one_error_line(err: str) -> str:
 
 
 _TOP = {"model": str, "method": str, "swarm": str, "seed": int, "param_names": list,
-        "units": list, "mrjax_version": str, "conditions": list}
+        "units": list, "mrjax_version": str, "conditions": list, "warnings": list}
 _COND = {"label": str, "current_A": (float, NoneType), "frequency_Hz": (float, NoneType),
          "amplitude_m": (float, NoneType), "n_samples": int, "params": dict, "stderr": dict,
          "rms_N": float, "nrmse": float, "pso_rms_N": (float, NoneType),
@@ -282,6 +282,11 @@ def check_fit_schema(doc: dict, n_conditions: int) -> None:
     assert names == list(mrjax.models.get(doc["model"]).param_names)
     assert len(doc["units"]) == len(names) and all(isinstance(u, str) for u in doc["units"])
     assert len(doc["conditions"]) == n_conditions
+    labels = {c["label"] for c in doc["conditions"]}
+    for w in doc["warnings"]:
+        assert set(w) == {"kind", "message", "conditions", "parameters"}, w
+        assert w["kind"] in ("at_bound", "not_identifiable", "too_few_currents"), w
+        assert set(w["conditions"]) <= labels and set(w["parameters"]) <= set(names), w
     for c in doc["conditions"]:
         for key, t in _COND.items():
             assert key in c, f"condition lacks {key!r}"
