@@ -419,3 +419,21 @@ def test_readme_examples_are_the_tested_ones():
         from_file = mrjax.data.DataSpec.from_dict(tomllib.loads(specs[name]))
         from_flags = mrjax.data.DataSpec.from_options(**options)
         assert from_file == from_flags.replace(origin=""), name
+
+
+def test_inspect_shows_the_measured_amplitude_beside_a_nominal_one(tmp_path):
+    """A UTFSM-style name gives the nominal amplitude (2 mm); the record spans +-1.62 mm:
+    `inspect` shows both. Where they agree (within 2 %) only the one value is shown."""
+    for name, amp in (("2mm5Hz0A.txt", 1.62e-3), ("10mm1Hz0A.txt", 10e-3)):
+        t, x, v = mrjax.data.sine_excitation(1.0, amp, sample_rate=200.0, cycles=3)
+        f = 300.0 * np.tanh(v / 0.01)
+        np.savetxt(tmp_path / name, np.column_stack([t, x * 1e3, v * 1e3, f]))
+    code, stdout, err = run(["inspect", tmp_path / "2mm5Hz0A.txt", tmp_path / "10mm1Hz0A.txt",
+                             "--no-plots", "--out", tmp_path / "o"])
+    assert code == 0, err
+    small, large = (ln for ln in stdout.splitlines() if ln.startswith(("2mm", "10mm")))
+    assert "A 2 mm nominal, 1.62 mm measured (half the range)" in small, small
+    assert "A 10 mm" in large and "nominal" not in large, large
+    doc = json.loads((tmp_path / "o" / "inspect.json").read_text())
+    np.testing.assert_allclose([c["amplitude_measured"] for c in doc["conditions"]],
+                               [1.62e-3, 10e-3], rtol=1e-3)
