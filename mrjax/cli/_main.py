@@ -86,7 +86,6 @@ def _fit_parser(sub, common) -> None:
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")
     add_output_options(p, "fit")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
                    help="print at most N rows of the result table (default all)")
     add_scale_options(p, journal=True)
@@ -105,7 +104,6 @@ def _predict_parser(sub, common) -> None:
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="data files or directories (any layout with the data options below)")
     add_output_options(p, "predict")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     add_data_options(p)
     p.set_defaults(run=("_predict", "run"))
 
@@ -149,7 +147,6 @@ def _compare_parser(sub, common) -> None:
                    help="precision of the swarm's search (default float64)")
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     add_output_options(p, "compare")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     add_scale_options(p, journal=False)
     add_data_options(p)
     p.set_defaults(run=("_compare", "run"))
@@ -166,10 +163,9 @@ def _inspect_parser(sub, common) -> None:
         "against time), inspect.json and, when data options were given, spec.toml (the "
         "effective spec, reusable with --spec) into --out, atomically.")
     p.add_argument("files", nargs="+", metavar="FILE", help="data files or directories")
-    add_output_options(p, "inspect")
+    add_output_options(p, "inspect", no_plots="write no PNG figure")
     p.add_argument("--max-panels", type=positive_int, default=12, metavar="N",
                    help="at most N tests in inspect.png, evenly spread (default 12)")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figure")
     add_data_options(p)
     p.set_defaults(run=("_inspect", "run"))
 
@@ -180,7 +176,7 @@ def _misc_parsers(sub, common) -> None:
                        description="Reproduce the study of Kwok et al. (2006).")
     p.add_argument("--quick", action="store_true", help="a small, fast version")
     p.add_argument("--data", metavar="DIR", help="measured data directory (default: embedded)")
-    add_output_options(p, "reproduce")
+    add_output_options(p, "reproduce", no_plots=None)
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
     p.set_defaults(run=("_misc", "run_reproduce"))
 

@@ -189,15 +189,19 @@ def parse_degrees(text: str) -> dict[str, int]:
 # Option groups shared by commands
 
 
-def add_output_options(parser: argparse.ArgumentParser, command: str) -> None:
-    """`--out DIR` (default `mrjax-out/COMMAND`) and `--overwrite`: where a command writes.
-    A directory holds one command's outputs (see `mrjax._io.OutputDir`)."""
+def add_output_options(parser: argparse.ArgumentParser, command: str, *,
+                       no_plots: str | None = "write no PNG figures") -> None:
+    """`--out DIR` (default `mrjax-out/COMMAND`), `--overwrite` and, unless `no_plots` is
+    None, `--no-plots` (its help): where and what a command writes. A directory holds one
+    command's outputs (see `mrjax._io.OutputDir`)."""
     parser.add_argument("--out", default=default_out(command), metavar="DIR",
                         help=f"output directory (default ./{default_out(command)}); it holds "
                         f"the outputs of `mrjax {command}` only, and one run at a time")
     parser.add_argument("--overwrite", action="store_true",
                         help="write into DIR even if another command's outputs or other files "
                         "are there (files mrjax did not write are kept)")
+    if no_plots is not None:
+        parser.add_argument("--no-plots", action="store_true", help=no_plots)
 
 
 def add_scale_options(parser: argparse.ArgumentParser, *, journal: bool) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import jax
@@ -151,6 +151,26 @@ def rows_rms(force: np.ndarray, pred: np.ndarray, mask: np.ndarray) -> np.ndarra
     per row (inf for a row without samples or with a non-finite prediction)."""
     return np.asarray(jax.vmap(masked_rms)(jnp.asarray(pred), jnp.asarray(force),
                                            jnp.asarray(mask, bool)), float)
+
+
+def measured_and_model(result: Any, batch: Any, force: np.ndarray | None,
+                       rms: Sequence[float] | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a measured-vs-model figure draws: `(F, pred, mask, rms)` with the measured force
+    (C, T) [N], the model's (`force`, or `result.predict(batch)`), the mask and the RMS per
+    condition [N] (`rms`, else `result.rms` when it has one entry per condition, else
+    :func:`rows_rms`). Raises `ValueError` when the model force's shape is not the batch's."""
+    pred = np.asarray(result.predict(batch) if force is None else force, dtype=float)
+    F = np.asarray(batch.force, dtype=float)
+    mask = np.asarray(batch.mask, dtype=bool)
+    C = F.shape[0]
+    if pred.shape != F.shape:
+        raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
+    if rms is None:
+        r = getattr(result, "rms", None)
+        rms = (np.asarray(r, float) if r is not None and np.size(r) == C
+               else rows_rms(F, pred, mask))
+    return F, pred, mask, np.asarray(rms, float)
 
 
 def _no_data(fig: Figure, ax, text: str) -> Figure:

@@ -18,10 +18,10 @@ from ._figures import (
     current_colors,
     distinct_motions,
     labels_of,
+    measured_and_model,
     motion_label,
     motion_of,
     new_figure,
-    rows_rms,
     small_axes,
     velocity_scale,
 )
@@ -105,20 +105,11 @@ def plot_loops_grid(
 
     **Returns:** the figure.
     """
-    pred = np.asarray(result.predict(batch) if force is None else force, dtype=float)
-    F = np.asarray(batch.force, dtype=float)
-    x = np.asarray(batch.x, dtype=float) * 1e3
-    mask = np.asarray(batch.mask, dtype=bool)
+    F, pred, mask, rms = measured_and_model(result, batch, force, rms)
     C = F.shape[0]
-    if pred.shape != F.shape:
-        raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
+    x = np.asarray(batch.x, dtype=float) * 1e3
     vs, vunit = velocity_scale(np.asarray(batch.xdot)[mask])
     v = np.asarray(batch.xdot, dtype=float) * vs
-    if rms is None:
-        r = getattr(result, "rms", None)
-        rms = (np.asarray(r, float) if r is not None and np.size(r) == C
-               else rows_rms(F, pred, mask))
-    rms = np.asarray(rms, float)
     labels = labels_of(batch, C)
     cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
                       ("current", "frequency", "amplitude"))
