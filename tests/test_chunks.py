@@ -14,6 +14,7 @@ import pytest
 from helpers import SWARM_RTOL, assert_same_polish, assert_same_swarms
 
 import mrjax
+from mrjax._io import MANIFEST
 from mrjax.cli import main
 from mrjax.data import make_batch, paper_grid
 from mrjax.fitting import FitResult, condition_keys, parse_memory, plan_chunks
@@ -268,7 +269,7 @@ def test_cli_resume_gives_the_same_bytes(csv30, tmp_path, monkeypatch, capsys):
     assert main(["fit", *argv, "--out", str(out), "--resume"]) == 0
     assert stage.calls == 2  # only the missing chunks
     assert _files(out) == _files(tmp_path / "whole")  # byte for byte; the journal is gone
-    assert sorted(_files(out)) == ["fit.csv", "fit.json"]
+    assert sorted(_files(out)) == [MANIFEST, "fit.csv", "fit.json"]
 
 
 def test_cli_memory_and_devices_options(csv30, tmp_path, capsys):

@@ -229,8 +229,8 @@ class FitResult:
         kind, `{"kind", "message", "conditions": [labels], "parameters": [names]}`.
 
         - `"at_bound"`: a parameter within `AT_BOUND` (0.5 %) of the search box's width of one
-            of its bounds (equal bounds, a fixed parameter, excepted): the optimum may lie
-            outside the box.
+            of its bounds and, where it has a std-error, within 1.96 std-errors of it (equal
+            bounds, a fixed parameter, excepted): the optimum may lie outside the box.
         - `"not_identifiable"`: a parameter on a numerically null direction of $J^T J$ or
             correlated above `mrjax.refine.CORR_LIMIT` with another (its std-error is null).
         - `"too_few_currents"` (with `generalized`, a `GeneralizedModel` of these fits): laws
@@ -334,9 +334,14 @@ def _warnings(res: FitResult, generalized: Any) -> list[dict[str, Any]]:
     if res.bounds is not None:
         lo = np.asarray(res.bounds["lower"], float)
         hi = np.asarray(res.bounds["upper"], float)
+        # near a bound, and the data cannot tell it from the bound (within its 95 % interval,
+        # or no std-error): a small value resolved far from 0 in a wide box is not flagged
+        se = np.asarray(res.stderr, float)
         tol = AT_BOUND * (hi - lo)
-        near_lo = (theta - lo <= tol) & (hi > lo)
-        near_hi = (hi - theta <= tol) & (hi > lo)
+        unsure = ~np.isfinite(se)
+        d_lo, d_hi = theta - lo, hi - theta
+        near_lo = (d_lo <= tol) & (unsure | (d_lo <= 1.96 * se)) & (hi > lo)
+        near_hi = (d_hi <= tol) & (unsure | (d_hi <= 1.96 * se)) & (hi > lo)
         at = near_lo | near_hi
         if at.any():
             rows, cols = np.nonzero(at)
