@@ -9,6 +9,7 @@ import argparse
 import math
 import re
 import sys
+from collections.abc import Iterable
 
 from .._errors import InputError
 
@@ -41,7 +42,7 @@ def show_warning(message, category, filename, lineno, file=None, line=None) -> N
     print(f"mrjax: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
 
 
-def did_you_mean(word: str, choices) -> str:
+def did_you_mean(word: str, choices: Iterable[str]) -> str:
     """`"; did you mean 'X'?"` for the choice closest to a mistyped `word`, or `""`."""
     import difflib  # imported here: only a mistake needs it
 
