@@ -92,7 +92,7 @@ def atomic_output(out_dir: str | os.PathLike, files: dict[str, bytes]) -> Path:
 MANIFEST = ".mrjax-outputs.json"
 #: Entries of an output directory that are mrjax's own bookkeeping, never foreign files: the
 #: manifest, the journal of an interrupted `mrjax fit` and a crashed writer's temporary folder.
-_OWN_PREFIXES = (MANIFEST, ".mrjax-journal", ".mrjax-tmp-", ".mrjax-probe-")
+_OWN_PREFIXES = (MANIFEST, ".mrjax-journal", ".mrjax-tmp-", ".mrjax-probe-", ".mrjax-lock")
 
 
 def _read_manifest(out: Path) -> dict | None:
@@ -136,7 +136,8 @@ class OutputDir:
         self.command = str(command)
         self.overwrite = bool(overwrite)
         self._lock_fd: int | None = None
-        self._lock_path = self.path.absolute().parent / f".{self.path.absolute().name}.mrjax-lock"
+        full = Path(os.path.abspath(self.path))
+        self._lock_path = full.parent / f".{full.name}.mrjax-lock"
         self._created: list[Path] = []
         self._previous: list[str] = []
 
@@ -200,6 +201,12 @@ class OutputDir:
         while True:
             try:
                 fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+            except PermissionError:
+                if not self.path.is_dir() or self._lock_path.parent == self.path:
+                    raise InputError(f"output directory {str(self.path)!r}: cannot create its "
+                                     "lock file beside it or in it") from None
+                self._lock_path = self.path / ".mrjax-lock"  # its parent is read-only
+                continue
             except OSError as e:
                 raise InputError(f"output directory {str(self.path)!r}: cannot create its lock "
                                  f"file: {e.strerror}") from None
