@@ -242,7 +242,6 @@ class FitResult:
         """
         return _warnings(self, generalized)
 
-
     def __repr__(self) -> str:
         return (f"FitResult(model={self.model.name!r}, method={self.method!r}, "
                 f"swarm_mode={self.swarm_mode!r}, "
