@@ -23,7 +23,15 @@ from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch, as_batch, check_mask
 from ..models import AbstractModel, from_source, get, resolve_model, source_of
 from ..objective import masked_rms, nrmse
-from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
+from ._laws import (
+    COMMAND_UNITS,
+    Z_SCALE_MODELS,
+    Law,
+    LawSet,
+    default_degrees,
+    group_currents,
+    lag_current,
+)
 
 #: Methods a :class:`GeneralizedModel` can come from: the paper's two-step generalization, the
 #: joint fit of the law coefficients (`generalize(method="joint")` and `identify`), or laws
@@ -361,6 +369,34 @@ class GeneralizedModel:
         return out
 
     # ----------------------------------------------------------------------------- text, I/O
+    def law_warnings(self, currents: ArrayLike) -> list[dict[str, Any]]:
+        """Laws that the tests' currents cannot determine: with U distinct `currents` [in
+        `command_unit`] a law of degree d needs d + 1 of them, so where the model's default
+        degree (:func:`default_degrees`) is higher than U - 1 the law was reduced to degree
+        U - 1 (constant for one current) or is not determined. As `FitResult.warnings`:
+        `[{"kind": "too_few_currents", "message", "conditions": [], "parameters"}]` or `[]`.
+        (Laws identified from time-varying commands, `identify`, see a continuum of commands:
+        this check is for laws through tests at constant currents.)"""
+        cur = np.asarray(currents, float).ravel()
+        levels, _ = group_currents(cur[np.isfinite(cur)]) if np.isfinite(cur).any() else (
+            np.zeros(0), None)
+        wanted = default_degrees(self.model, unit=self.command_unit)
+        short = [n for n in self.param_names
+                 if max(wanted.get(n, 0), len(self.coefficients(n)) - 1) + 1 > levels.size]
+        if not short:
+            return []
+        need = max(max(wanted.get(n, 0), len(self.coefficients(n)) - 1) for n in short) + 1
+        have = ", ".join(f"{v:g}" for v in levels[:6]) + (" ..." if levels.size > 6 else "")
+        U = levels.size
+        return [{
+            "kind": "too_few_currents",
+            "message": f"laws of {', '.join(short)} from {U} distinct current"
+            f"{'s' if U != 1 else ''} ({have} {self.command_unit}): their degrees need up to "
+            f"{need} distinct currents, so they are "
+            f"{'constants' if U == 1 else f'of degree at most {U - 1}'} or not determined by "
+            "the data; test more currents",
+            "conditions": [], "parameters": short}]
+
     def loosely_determined(self, rel: float = 0.025) -> dict[str, tuple[bool, ...]]:
         """Which law coefficients the data determine only loosely: std-error above `rel`
         (dimensionless, default 2.5 %) of the coefficient's magnitude, so that two std-errors

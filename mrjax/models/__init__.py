@@ -24,6 +24,7 @@ from ._integrate import integrate as integrate
 from ._integrate import integrate_step as integrate_step
 from ._literature import REFERENCE_PARAMS as REFERENCE_PARAMS
 from ._registry import ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
+from ._registry import aliases as aliases
 from ._registry import describe_source as describe_source
 from ._registry import from_source as from_source
 from ._registry import get as get

@@ -16,6 +16,7 @@ finds it again in another process (`mrjax predict --fit DIR`).
 
 from __future__ import annotations
 
+import difflib
 import hashlib
 import importlib
 import importlib.util
@@ -75,6 +76,11 @@ def names() -> tuple[str, ...]:
     return tuple(out)
 
 
+def aliases() -> dict[str, str]:
+    """Other names accepted by :func:`get`: alias -> registered name (`tanh` -> `kwok`, ...)."""
+    return dict(_ALIASES)
+
+
 def is_spec(text: str) -> bool:
     """Whether `text` names a model by its place: `path/file.py[:Name]` or `module:Name`."""
     return ":" in text or text.endswith(".py")
@@ -119,8 +125,10 @@ def _by_name(text: str) -> AbstractModel:
     eps = _entry_points()
     if key in eps:
         return _load_entry_point(eps[key])
-    raise InputError(f"unknown model {text!r}; choose one of {', '.join(names())}, or give "
-                     f"path/to/file.py:Name")
+    close = difflib.get_close_matches(key, [*names(), *_ALIASES], n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    raise InputError(f"unknown model {text!r}; {hint}choose one of {', '.join(names())} "
+                     f"(aliases: {', '.join(_ALIASES)}), or give path/to/file.py:Name")
 
 
 def register(model: AbstractModel | type, *, source: Mapping[str, Any] | None = None
