@@ -334,7 +334,7 @@ def test_figures(held):
     (dict(models="kwok", hold_out={"current": [3.0]}), "hold-out set is empty at 3 A"),
     (dict(models="kwok", key=0), "seed="),
     (dict(models="kwok", bounds={"dahl": None}), "not compared"),
-    (dict(models="kwok", polish=True), "unknown fit option 'polish'"),
+    (dict(models="kwok", polish_iterations=5), "unknown fit option 'polish_iterations'"),
     (dict(models="kwok", generalize_methods="two-step,three-step"), "'three-step'"),
 ])
 def test_compare_bad_input(grid, kwargs, needle):
