@@ -4,7 +4,11 @@
     displacement. If it is a constant multiple of it (least-squares ratio away from 1 by more
     than 1.5x, correlation above 0.9), a unit was probably mixed up; the message names the
     nearest of the usual factors (10, 100, 1000, 25.4, 2.54 and their inverses: cm/mm, m/cm,
-    m/mm, in/mm, in/cm) and the units that give it. An opposite sign is reported too.
+    m/mm, in/mm, in/cm) and the units that give it. An opposite sign is reported too. The
+    ratio is taken between the *integral* of the measured velocity (trapezoid rule on the
+    sample times) and the displacement, an offset and a linear drift removed from both: the
+    same ratio as velocity to the derivative of displacement, without differentiating the
+    displacement's noise, in O(T) (a fleet's thousands of records are checked as they load).
 - **Displacement range.** A damper stroke spans roughly 0.1 mm to 1 m; a displacement that
     spans more than 1 m or less than 10 um peak to peak is probably in the wrong unit (the
     lower bound only for records of at least one period of their known frequency: a shorter
@@ -49,20 +53,31 @@ def _factor_hint(ratio: float) -> str:
 
 
 def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
-    """`(ratio, correlation)` of the measured velocity to the derivative of the displacement
-    (least-squares ratio), or None when the record is too short or the motion too small to
-    tell (fewer than 16 samples, or no displacement signal)."""
-    from ._velocity import estimate_velocity
+    """`(ratio, correlation)` of the measured velocity to the derivative of the displacement,
+    or None when the record is too short or the motion too small to tell (fewer than 16
+    samples, or no displacement signal).
 
+    The ratio is the least-squares ratio of the integral of the velocity to the displacement
+    (see the module notes), both with their offset and linear drift removed; the correlation
+    is theirs.
+    """
     if cond.n_samples < 16 or not np.ptp(cond.x) > 0:
         return None
-    est = estimate_velocity(cond.t, cond.x)
-    ee = float(np.dot(est, est))
-    vv = float(np.dot(cond.xdot, cond.xdot))
-    if not (ee > 0 and vv > 0):
+    t = cond.t - cond.t[0]
+    step = np.diff(t)
+    moved = np.concatenate([[0.0], np.cumsum(0.5 * (cond.xdot[1:] + cond.xdot[:-1]) * step)])
+    basis = np.column_stack([np.ones_like(t), t / t[-1]])
+    q, _ = np.linalg.qr(basis)
+
+    def residual(a: np.ndarray) -> np.ndarray:
+        return a - q @ (q.T @ a)
+
+    x, m = residual(cond.x), residual(moved)
+    xx, mm = float(np.dot(x, x)), float(np.dot(m, m))
+    if not (xx > 0 and mm > 0):
         return None
-    ev = float(np.dot(est, cond.xdot))
-    return ev / ee, ev / math.sqrt(ee * vv)
+    xm = float(np.dot(x, m))
+    return xm / xx, xm / math.sqrt(xx * mm)
 
 
 def check_condition(cond: Condition) -> list[str]:

@@ -30,7 +30,8 @@ def _numeric(frame, j: int, name: str, where: str) -> np.ndarray:
             f"{where}, row {k} (index {frame.index[k]!r}), column {name!r}: not a number: "
             f"{series.iloc[k]!r}"
         )
-    return values.to_numpy(dtype=float, na_value=np.nan)
+    return np.array(values.to_numpy(dtype=float, na_value=np.nan), copy=True)  # not a view
+    # of the caller's frame: the conditions hold slices of it
 
 
 def from_frame(frame: pd.DataFrame, spec: DataSpec | None = None, *,

@@ -105,6 +105,7 @@ def _suffix(unit: str) -> str:
     return unit.replace("/", "_")
 
 
+@functools.lru_cache(maxsize=256)
 def _dimension_ok(dim, quantity: str) -> bool:
     ureg = _registry()
     return any(dim == ureg.get_dimensionality(d) for d in _QUANTITIES[quantity][0])
