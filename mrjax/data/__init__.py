@@ -2,6 +2,7 @@
 sanity checks, reports and the synthetic grid."""
 
 from ._checks import check_condition as check_condition
+from ._columnar import load_columnar as load_columnar
 from ._columns import ROLES as ROLES
 from ._columns import Column as Column
 from ._columns import Meta as Meta

@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from .._errors import InputError
-from ._checks import check_condition
+from ._checks import check_record
 from ._columns import ROLES, SIGNAL_ROLES, Column, Meta
 from ._condition import Condition
 from ._spectrum import estimate_motion
@@ -78,15 +78,12 @@ class Codes:
 
     @classmethod
     def of(cls, values: Sequence[str] | np.ndarray) -> Codes:
-        """The codes of text values (no Python loop over the rows)."""
-        a = np.asarray(values, dtype=object).astype(str)
-        if a.size == 0:
-            return cls(np.zeros(0, np.int32), ())
-        uniq, first, inverse = np.unique(a, return_index=True, return_inverse=True)
-        order = np.argsort(first, kind="stable")  # the distinct values by first appearance
-        rank = np.empty_like(order)
-        rank[order] = np.arange(order.size)
-        return cls(rank[inverse].astype(np.int32), tuple(str(v) for v in uniq[order]))
+        """The codes of text values (`str` of each; a file's rows: one dict look-up per row,
+        not numpy's fixed-width strings, which drop trailing NUL characters)."""
+        index: dict[str, int] = {}
+        codes = np.fromiter((index.setdefault(str(v), len(index)) for v in values),
+                            dtype=np.int32, count=len(values))
+        return cls(codes, tuple(index))
 
 
 #: The rows of one condition: a slice (rows stored together, as most files do) or their index.
@@ -298,22 +295,22 @@ def _one(read: ReadColumns, cols: Mapping[str, Column], idx: Rows, key: str | No
             raise InputError(f"{source}: no velocity column, and {e}") from None
         notes.append(f"velocity estimated from displacement (Savitzky-Golay, {how})")
         estimated.add("xdot")
-        cond = dataclasses.replace(cond, xdot=v)
+    changes: dict[str, object] = {} if xdot is not None else {"xdot": v}
+    frequency = cond.frequency
     if not strict and (cond.frequency is None or cond.amplitude is None):
         f_est, a_est = estimate_motion(cond.t, cond.x)
-        changes = {}
         if cond.frequency is None and f_est > 0:
-            changes["frequency"] = f_est
+            changes["frequency"] = frequency = f_est
             estimated.add("frequency")
         if cond.amplitude is None:
             changes["amplitude"] = a_est
             estimated.add("amplitude")
-        cond = dataclasses.replace(cond, **changes)
-    cond = dataclasses.replace(cond, estimated=frozenset(estimated), notes=tuple(notes))
-    cond_warnings = check_condition(cond) + cond_warnings
+    cond_warnings = check_record(cond.t, cond.x, xdot if xdot is None else cond.xdot,
+                                 frequency) + cond_warnings
     for w in cond_warnings:
         _warn(source, w)
-    return dataclasses.replace(cond, warnings=tuple(cond_warnings))
+    return dataclasses.replace(cond, **changes, estimated=frozenset(estimated),
+                               notes=tuple(notes), warnings=tuple(cond_warnings))
 
 
 def _warn(source: str, message: str) -> None:

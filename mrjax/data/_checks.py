@@ -61,18 +61,21 @@ def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
     (see the module notes), both with their offset and linear drift removed; the correlation
     is theirs.
     """
-    if cond.n_samples < 16 or not np.ptp(cond.x) > 0:
+    return _ratio(cond.t, cond.x, cond.xdot)
+
+
+def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
+    if t.shape[0] < 16 or not np.ptp(x) > 0:
         return None
-    t = cond.t - cond.t[0]
-    step = np.diff(t)
-    moved = np.concatenate([[0.0], np.cumsum(0.5 * (cond.xdot[1:] + cond.xdot[:-1]) * step)])
+    t = t - t[0]
+    moved = np.concatenate([[0.0], np.cumsum(0.5 * (xdot[1:] + xdot[:-1]) * np.diff(t))])
     basis = np.column_stack([np.ones_like(t), t / t[-1]])
     q, _ = np.linalg.qr(basis)
 
     def residual(a: np.ndarray) -> np.ndarray:
         return a - q @ (q.T @ a)
 
-    x, m = residual(cond.x), residual(moved)
+    x, m = residual(x), residual(moved)
     xx, mm = float(np.dot(x, x)), float(np.dot(m, m))
     if not (xx > 0 and mm > 0):
         return None
@@ -87,22 +90,29 @@ def check_condition(cond: Condition) -> list[str]:
 
     **Returns:** one line per problem found (empty if none), without the file name.
     """
+    return check_record(cond.t, cond.x, None if "xdot" in cond.estimated else cond.xdot,
+                        cond.frequency)
+
+
+def check_record(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None,
+                 frequency: float | None) -> list[str]:
+    """:func:`check_condition` on the arrays of a record (SI): `xdot` None where the velocity
+    was estimated (then not checked against the displacement)."""
     out = []
-    span = float(np.ptp(cond.x))
+    span = float(np.ptp(x))
     lo, hi = STROKE_RANGE_M
     if span > hi:
         out.append(
             f"displacement spans {span:.4g} m peak to peak, more than a damper stroke: is its "
             f"unit right (mm given as m?)"
         )
-    elif span < lo and (cond.frequency is None
-                        or cond.frequency * float(cond.t[-1] - cond.t[0]) >= 1.0):
+    elif span < lo and (frequency is None or frequency * float(t[-1] - t[0]) >= 1.0):
         out.append(
             f"displacement spans {span:.3g} m peak to peak, less than {lo * 1e6:g} um: is its "
             f"unit right (m given as mm?)"
         )
-    if "xdot" not in cond.estimated:
-        got = velocity_ratio(cond)
+    if xdot is not None:
+        got = _ratio(t, x, xdot)
         if got is not None:
             ratio, corr = got
             if corr < -0.9:

@@ -30,6 +30,7 @@ from ._build import Codes, LineMap, ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, stem
+from ._pieces import join_codes, join_floats, view
 from ._progress import advance
 from ._units import COLUMN_QUANTITIES, UNITS, parse_column
 
@@ -403,7 +404,7 @@ def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> _Part | None
         labels = [s.strip() for s in col.dictionary.to_pylist()]
         if not all(labels):
             return None
-        values[c] = Codes(col.indices.to_numpy(zero_copy_only=False).astype(np.int32, copy=False),
+        values[c] = Codes(view(col.indices, np.int32),
                           tuple(labels))
     empty = {}
     for j in others:
@@ -420,35 +421,14 @@ def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> _Part | None
     return _Part(table.num_rows, values, LineMap.run(first_line), 0, empty)
 
 
-def _concatenate(pieces: list) -> np.ndarray:
-    """One float64 array of numpy arrays and arrow (chunked) arrays, in one copy."""
-    out = np.empty(sum(len(a) for a in pieces))
-    k = 0
-    for a in pieces:
-        chunks = a.chunks if hasattr(a, "chunks") else [a]
-        for ch in chunks:
-            v = ch if isinstance(ch, np.ndarray) else ch.to_numpy(zero_copy_only=True)
-            out[k:k + len(v)] = v
-            k += len(v)
-    return out
-
-
 def _join(parts: list[_Part], lay: _Layout) -> tuple[int, dict[Column, np.ndarray | Codes],
                                                     LineMap, int, dict[int, int]]:
     """The parts as one table: codes of the text columns merged by label."""
     n = sum(p.n for p in parts)
     values: dict[Column, np.ndarray | Codes] = {}
     for c in lay.index:
-        if c.unit is not None:
-            values[c] = _concatenate([p.values.pop(c) for p in parts])
-            continue
-        seen: dict[str, int] = {}
-        codes = []
-        for p in parts:
-            local = p.values.pop(c)
-            remap = np.asarray([seen.setdefault(s, len(seen)) for s in local.names], np.int32)
-            codes.append(remap[local.codes] if remap.size else local.codes)
-        values[c] = Codes(np.concatenate(codes) if codes else np.zeros(0, np.int32), tuple(seen))
+        pieces = [p.values.pop(c) for p in parts]
+        values[c] = join_floats(pieces) if c.unit is not None else join_codes(pieces)
     starts = np.cumsum([0] + [p.n for p in parts])
     lines = LineMap.join([(int(r0), p.lines) for r0, p in zip(starts, parts)])
     blank = sum(p.blank for p in parts)

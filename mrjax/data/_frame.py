@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import InputError
-from ._build import ReadColumns, assemble
+from ._build import Codes, ReadColumns, assemble
 from ._columns import Column
 from ._condition import Batch, Condition
 from ._csv import column_index, conventional_columns
@@ -77,8 +77,8 @@ def from_frame(frame: pd.DataFrame, spec: DataSpec | None = None, *,
     for role, c in asked:
         j = column_index(header, c, role, name)
         if c.unit is None:
-            text = frame.iloc[:, j].astype(str).str.strip().to_numpy(dtype=object)
-            values[c] = text
+            codes, labels = pd.factorize(frame.iloc[:, j].astype(str).str.strip(), sort=False)
+            values[c] = Codes(codes.astype(np.int32), tuple(str(s) for s in labels))
         else:
             values[c] = _numeric(frame, j, header[j], name)
     unused = [h for h in header if h not in {header[column_index(header, c, r, name)] for r, c in asked}]

@@ -7,6 +7,8 @@
     `displacement_mm`, ...), several tests told apart by a `condition` column.
     (`mrjax.data.load_csv`)
 - `.mat`: MATLAB files (up to v7), variables named by the user. (`mrjax.data.load_mat`)
+- `.parquet` / `.pq`, `.feather` / `.arrow`: columnar files in the long layout of the CSV
+    format. (`mrjax.data.load_columnar`)
 - **Any other layout** (own column names, any units, no time vector, one test per column,
     metadata per file): a `mrjax.data.DataSpec`, `load(paths, spec=...)`.
 
@@ -27,22 +29,27 @@ from pathlib import Path
 
 from .._errors import InputError
 from ._build import assemble
+from ._columnar import FEATHER_SUFFIXES, PARQUET_SUFFIXES, load_columnar, read_columnar
 from ._condition import Batch, Condition, make_batch
 from ._csv import load_csv, read_csv
 from ._files import PathLike, find_files, label_meta
 from ._mat import load_mat, read_mat
+from ._progress import load_progress
 from ._spec import DataSpec, spec_matches
 from ._text import load_txt, read_text
 
-_LOADERS = {".csv": load_csv, ".txt": load_txt, ".dat": load_txt, ".mat": load_mat}
-_READERS = {".csv": read_csv, ".txt": read_text, ".dat": read_text, ".mat": read_mat}
+_LOADERS = {".csv": load_csv, ".txt": load_txt, ".dat": load_txt, ".mat": load_mat,
+            **{s: load_columnar for s in PARQUET_SUFFIXES + FEATHER_SUFFIXES}}
+_READERS = {".csv": read_csv, ".txt": read_text, ".dat": read_text, ".mat": read_mat,
+            **{s: read_columnar for s in PARQUET_SUFFIXES + FEATHER_SUFFIXES}}
 
 
 
 def load_file(path: PathLike, spec: DataSpec) -> list[Condition]:
     """The conditions of one file read by `spec` (see `mrjax.data.DataSpec`).
 
-    **Arguments:** `path`: a `.csv`, `.txt`, `.dat` or `.mat` file; `spec`: the data spec.
+    **Arguments:** `path`: a data file (`.csv`, `.txt`, `.dat`, `.mat`, `.parquet`, `.pq`,
+    `.feather`, `.arrow`); `spec`: the data spec.
 
     **Returns:** a list of :class:`Condition` in SI units: one per test (a long CSV's
     `condition` values, the wide layout's columns), labelled by the spec's `label`, the
@@ -66,22 +73,24 @@ def load(
     paths: PathLike | Sequence[PathLike],
     *,
     spec: DataSpec | None = None,
+    progress: bool | None = None,
     **options,
 ) -> list[Condition]:
     """Load test conditions from files, directories, or a list of them.
 
     **Arguments:**
 
-    - `paths`: a file, a directory (every `.csv`, `.txt`, `.dat`, `.mat` file directly inside
-        it, sorted by name), or a list of files and directories (see `mrjax.data.find_files`).
+    - `paths`: a file, a directory (every data file directly inside it, sorted by name), or a
+        list of files and directories (see `mrjax.data.find_files`).
     - `spec`: a `mrjax.data.DataSpec` saying where the signals are and in which units, plus
         metadata and the velocity window: for files with their own column names, units and
         layouts. Without one (or with an empty one) every file is read by the conventions of
         its format and `**options`.
     - `**options`: without a spec, keyword options of the loader of each file type:
         `mrjax.data.load_csv` (`.csv`), `mrjax.data.load_txt` (`.txt`, `.dat`),
-        `mrjax.data.load_mat` (`.mat`). An option that the loader of some file does not
-        take is an error, not silently ignored.
+        `mrjax.data.load_mat` (`.mat`), `mrjax.data.load_columnar` (`.parquet`, `.pq`,
+        `.feather`, `.arrow`). An option that the loader of some file does not take is an
+        error, not silently ignored.
 
     **Returns:** a list of :class:`Condition` in SI units, in file order (and, within a file,
     in order of first appearance of its tests).
@@ -94,6 +103,11 @@ def load(
     files = find_files(paths)
     if spec is not None and not isinstance(spec, DataSpec):
         raise InputError(f"spec must be a mrjax.data.DataSpec, got {type(spec).__name__}")
+    with load_progress(sum(f.stat().st_size for f in files), progress):
+        return _load(files, spec, options)
+
+
+def _load(files: list[Path], spec: DataSpec | None, options: dict) -> list[Condition]:
     if spec is not None and not spec.is_empty:
         if options:
             raise InputError(
@@ -107,7 +121,7 @@ def load(
             if not any(spec_matches(pattern, f) for f in files):
                 warnings.warn(f"{spec.origin or 'data spec'}: files entry {pattern!r} matches "
                               f"none of the {len(files)} file(s) loaded", RuntimeWarning,
-                              stacklevel=2)
+                              stacklevel=3)
         return out
     out = []
     for f in files:
@@ -133,15 +147,17 @@ def load_batch(
     spec: DataSpec | None = None,
     length: int | None = None,
     dtype=None,
+    progress: bool | None = None,
     **options,
 ) -> Batch:
     """Load conditions (as `mrjax.data.load`) and stack them into a padded :class:`Batch`.
 
     **Arguments:**
 
-    - `paths`, `spec`, `**options`: as for `mrjax.data.load`.
+    - `paths`, `spec`, `progress`, `**options`: as for `mrjax.data.load`.
     - `length`, `dtype`: as for `mrjax.data.make_batch`.
 
     **Returns:** `make_batch(load(paths, spec=spec, **options), length=length, dtype=dtype)`.
     """
-    return make_batch(load(paths, spec=spec, **options), length=length, dtype=dtype)
+    return make_batch(load(paths, spec=spec, progress=progress, **options), length=length,
+                      dtype=dtype)

@@ -15,6 +15,7 @@ is built on first use (importing `pint` costs about 0.3 s, paid only when a unit
 from __future__ import annotations
 
 import functools
+import math
 import re
 from collections.abc import Iterator, Mapping
 from tokenize import TokenError
@@ -89,11 +90,14 @@ def _parse(unit: str):
     ureg = _registry()
     try:
         u = ureg.parse_units(unit)
+        q = ureg.Quantity(1.0, u).to_base_units()
+        factor = float(q.magnitude)
     except (pint.errors.PintError, ValueError, AttributeError, TypeError, SyntaxError,
-            AssertionError, KeyError, IndexError, TokenError):
+            AssertionError, KeyError, IndexError, TokenError, ArithmeticError, RecursionError):
+        return None  # (pint divides by a number written 0..., e.g. 'm/018')
+    if not (math.isfinite(factor) and factor != 0.0):
         return None
-    q = ureg.Quantity(1.0, u).to_base_units()
-    return u, float(q.magnitude), u.dimensionality
+    return u, factor, u.dimensionality
 
 
 def _canonical(unit: str) -> str:
