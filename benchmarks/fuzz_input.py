@@ -28,6 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--examples", type=int, default=2000, help="cases per target")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--only", default="", help="run the targets whose name contains this")
+    ap.add_argument("--keep", type=Path, default=Path(tempfile.gettempdir()) / "mrjax-fuzz-failed",
+                    help="folder where each failing case is written whole (default %(default)s)")
     a = ap.parse_args(argv)
 
     import fuzzing as fz
@@ -85,11 +88,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     report, failed = {}, 0
     for k, (name, (strategy, case)) in enumerate(targets.items()):
+        if a.only not in name:
+            continue
         counts = {"ok": 0, "error": 0, "failed": 0}
         failures: list[dict] = []
         t0 = time.perf_counter()
 
-        run = _runner(strategy, case, counts, failures, a.examples)
+        run = _runner(strategy, case, counts, failures, a.examples, a.keep / f"target{k}")
         hseed(a.seed + k)(run)()
         n = sum(counts.values())
         report[name] = {**counts, "cases": n, "seconds": round(time.perf_counter() - t0, 1),
@@ -107,9 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     return 1 if failed else 0
 
 
-def _runner(strategy, case, counts: dict, failures: list, examples: int):
+def _runner(strategy, case, counts: dict, failures: list, examples: int, keep: Path):
     """A hypothesis test that runs `case` on `examples` values of `strategy`, counting the
-    outcomes and keeping the first failures (without stopping)."""
+    outcomes and keeping the first failures (without stopping; bytes cases written to
+    `keep`)."""
     from hypothesis import HealthCheck, Phase, given, settings
 
     @settings(max_examples=examples, database=None, deadline=None,
@@ -120,6 +126,9 @@ def _runner(strategy, case, counts: dict, failures: list, examples: int):
             counts[case(value)] += 1
         except Exception:  # a traceback: the failure this script looks for
             counts["failed"] += 1
+            if isinstance(value, bytes):
+                keep.mkdir(parents=True, exist_ok=True)
+                (keep / f"case{counts['failed']}.bin").write_bytes(value)
             if len(failures) < 5:
                 failures.append({"case": repr(value)[:2000],
                                  "traceback": traceback.format_exc()[-2000:]})

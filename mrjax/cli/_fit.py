@@ -236,8 +236,8 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
         "DIR/.mrjax-journal until the outputs are written, so that an interrupted run "
         "continues with --resume.")
     p.add_argument("files", nargs="+", metavar="FILE",
-                   help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
-                   "the data options below)")
+                   help="data files or directories (.csv, .txt/.dat, .mat, .parquet, "
+                   ".feather/.arrow; any layout with the data options below)")
     p.add_argument("--model", required=True, metavar="NAME",
                    help="model name: bingham, kwok (tanh), bouc_wen, modified_bouc_wen, dahl "
                    "(see `mrjax models`)")
