@@ -76,6 +76,9 @@ class Codes:
     codes: np.ndarray
     names: tuple[str, ...]
 
+    def __len__(self) -> int:
+        return int(self.codes.shape[0])
+
     @classmethod
     def of(cls, values: Sequence[str] | np.ndarray) -> Codes:
         """The codes of text values (`str` of each; a file's rows: one dict look-up per row,

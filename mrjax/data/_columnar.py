@@ -3,7 +3,7 @@
 The columns are those of the long CSV format (`condition`, `time_s`, `displacement_mm`, ...:
 names that carry their unit, see `mrjax.data.load_csv`), or any names through a data spec
 (`"Disp:cm"`; a bare integer is a column position). Only the columns asked for are read, one
-record batch (Parquet: up to `BATCH_ROWS` rows) at a time, straight into float64 arrays and
+piece (a Parquet row group, an Arrow record batch) at a time, straight into float64 arrays and
 integer codes of the `condition` column; a pandas index stored as a column
 (`__index_level_0__`) is ignored. The checks and messages are those of the CSV format, rows
 numbered from 0 as pyarrow and pandas number them: a null is an "empty cell", text that is not
@@ -14,7 +14,7 @@ a number is named with its row and column, and the values then go through the sa
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +29,6 @@ from ._files import PathLike, check_file, stem
 from ._pieces import join_codes, join_floats, view
 from ._progress import advance
 
-#: Parquet rows per record batch read.
-BATCH_ROWS = 2**18
 #: File extensions read as Parquet and as Feather (Arrow IPC).
 PARQUET_SUFFIXES: tuple[str, ...] = (".parquet", ".pq")
 FEATHER_SUFFIXES: tuple[str, ...] = (".feather", ".arrow")
@@ -41,52 +39,102 @@ def _kind(path: Path) -> str:
     return "Parquet" if path.suffix.lower() in PARQUET_SUFFIXES else "Feather"
 
 
-class _Table:
-    """An open Parquet or Feather file: its schema and its record batches (of some
-    columns)."""
+class ColumnarFile:
+    """A Parquet or Feather file opened for reading: its schema and columns, its pieces
+    (Parquet row groups, Arrow record batches) read one at a time (:meth:`pieces`,
+    :meth:`read_piece`) and joined into one table (:meth:`table`)."""
 
-    def __init__(self, path: Path, src: str):
+    def __init__(self, path: PathLike, *, columns: Mapping[str, Column] | None,
+                 wide: Mapping[str, tuple[Column, ...]] | None = None, strict: bool):
         import pyarrow as pa
 
-        self.src, self.kind = src, _kind(path)
+        p = check_file(path)
+        self.src, self.stem, self.strict = str(path), stem(path), strict
+        self.kind = _kind(p)
+        self.size = p.stat().st_size
         self._file: Any = None
         try:
             if self.kind == "Parquet":
                 import pyarrow.parquet as pq
 
-                self._file = pq.ParquetFile(path)
-                self.schema = self._file.schema_arrow
-                self.n_rows = self._file.metadata.num_rows
+                self._file = pq.ParquetFile(p)
+                schema = self._file.schema_arrow
+                rows = [self._file.metadata.row_group(i).num_rows
+                        for i in range(self._file.num_row_groups)]
             else:
                 try:
-                    self._file = pa.ipc.open_file(pa.OSFile(str(path)))
+                    self._file = pa.ipc.open_file(pa.OSFile(str(p)))
                 except pa.ArrowInvalid:  # Feather version 1: read whole
                     import pyarrow.feather as feather
 
-                    self._file = feather.read_table(str(path), memory_map=False)
-                self.schema = self._file.schema
-                self.n_rows = (self._file.num_rows if isinstance(self._file, pa.Table)
-                               else sum(self._file.get_batch(i).num_rows
-                                        for i in range(self._file.num_record_batches)))
+                    self._file = feather.read_table(str(p), memory_map=False).combine_chunks()
+                schema = self._file.schema
+                rows = ([self._file.num_rows] if isinstance(self._file, pa.Table)
+                        else [self._file.get_batch(i).num_rows
+                              for i in range(self._file.num_record_batches)])
         except (pa.ArrowException, OSError, ValueError) as e:
-            raise InputError(f"{src}: not a readable {self.kind} file ({one_line(e)})") from None
-        self.size = path.stat().st_size
+            raise InputError(f"{self.src}: not a readable {self.kind} file "
+                             f"({one_line(e)})") from None
+        #: first row of each piece, and the number of rows
+        self.starts = np.concatenate([[0], np.cumsum(rows)]).astype(np.int64)
+        self.n_rows = int(self.starts[-1])
+        names = [n for n in schema.names if not _INDEX.fullmatch(str(n))]
+        self.header = [str(n) for n in names]
+        if len(set(self.header)) != len(self.header):
+            dup = next(h for h in self.header if self.header.count(h) > 1)
+            raise InputError(f"{self.src}: column {dup!r} appears twice")
+        if self.n_rows == 0:
+            raise InputError(f"{self.src}: no data rows")
+        self.wide = dict(wide or {})
+        if columns is None:
+            columns = conventional_columns(self.header, self.src, strict)
+        self.columns = dict(columns)
+        asked = list(self.columns.items()) + [(r, c) for r, cs in self.wide.items() for c in cs]
+        self.index = {c: column_index(self.header, c, role, self.src) for role, c in asked}
+        self.used = sorted(set(self.index.values()))
+        self._names = [names[j] for j in self.used]
 
-    def batches(self, names: list[str]) -> Iterator[Any]:
-        """Record batches of the columns `names`, in file order."""
+    @property
+    def n_pieces(self) -> int:
+        return len(self.starts) - 1
+
+    def read_piece(self, i: int) -> dict[Column, Any]:
+        """The columns asked for of piece `i` (float64 arrow arrays; `Codes` for the
+        `condition` column), checked."""
         import pyarrow as pa
 
         try:
             if self.kind == "Parquet":
-                yield from self._file.iter_batches(batch_size=BATCH_ROWS, columns=names)
+                batch = self._file.read_row_group(i, columns=self._names)
             elif isinstance(self._file, pa.Table):
-                yield from self._file.select(names).to_batches()
+                batch = self._file.select(self._names)
             else:
-                for i in range(self._file.num_record_batches):
-                    yield self._file.get_batch(i).select(names)
+                batch = self._file.get_batch(i).select(self._names)
         except (pa.ArrowException, OSError) as e:
             raise InputError(f"{self.src}: not a readable {self.kind} file "
                              f"({one_line(e)})") from None
+        row0 = int(self.starts[i])
+        out = {}
+        for c, j in self.index.items():
+            arr = batch.column(self.used.index(j))
+            if isinstance(arr, pa.ChunkedArray):
+                arr = arr.combine_chunks()
+            read = _floats if c.unit is not None else _codes
+            out[c] = read(arr, self.header[j], row0, self.src)
+        advance(int(self.size * (self.starts[i + 1] - row0) / max(self.n_rows, 1)))
+        return out
+
+    def table(self, parts: list[dict[Column, Any]], *, whole: bool = True) -> ReadColumns:
+        """The pieces read as one table; `whole`: all of them (the notes are then those of
+        the file)."""
+        values = {c: join_floats([p[c] for p in parts]) if c.unit is not None
+                  else join_codes([p[c] for p in parts]) for c in self.index}
+        n = sum(len(next(iter(p.values()))) for p in parts) if parts else 0
+        notes = []
+        unused = [repr(h) for j, h in enumerate(self.header) if j not in self.used]
+        if whole and unused and not self.strict:
+            notes.append(f"column(s) {', '.join(unused)} not used")
+        return ReadColumns(self.src, self.stem, n, self.columns, self.wide, values, None, notes)
 
 
 def one_line(e: BaseException) -> str:
@@ -149,38 +197,8 @@ def read_columnar(
 ) -> ReadColumns:
     """Read the columns of a Parquet or Feather file: those given, or those named
     `<quantity>_<unit>` (see the module notes)."""
-    p = check_file(path)
-    src = str(path)
-    table = _Table(p, src)
-    names = [n for n in table.schema.names if not _INDEX.fullmatch(str(n))]
-    header = [str(n) for n in names]
-    if len(set(header)) != len(header):
-        dup = next(h for h in header if header.count(h) > 1)
-        raise InputError(f"{src}: column {dup!r} appears twice")
-    if table.n_rows == 0:
-        raise InputError(f"{src}: no data rows")
-    wide = dict(wide or {})
-    if columns is None:
-        columns = conventional_columns(header, src, strict)
-    asked = list(columns.items()) + [(r, c) for r, cs in wide.items() for c in cs]
-    index = {c: column_index(header, c, role, src) for role, c in asked}
-    used = sorted(set(index.values()))
-    pieces: dict[Column, list] = {c: [] for c in index}
-    row0 = 0
-    for batch in table.batches([names[j] for j in used]):
-        for c, j in index.items():
-            arr = batch.column(used.index(j))
-            read = _floats if c.unit is not None else _codes
-            pieces[c].append(read(arr, header[j], row0, src))
-        row0 += batch.num_rows
-        advance(int(table.size * batch.num_rows / max(table.n_rows, 1)))
-    values = {c: join_floats(ps) if c.unit is not None else join_codes(ps)
-              for c, ps in pieces.items()}
-    notes = []
-    unused = [repr(h) for j, h in enumerate(header) if j not in used]
-    if unused and not strict:
-        notes.append(f"column(s) {', '.join(unused)} not used")
-    return ReadColumns(src, stem(path), row0, dict(columns), wide, values, None, notes)
+    f = ColumnarFile(path, columns=columns, wide=wide, strict=strict)
+    return f.table([f.read_piece(i) for i in range(f.n_pieces)])
 
 
 def load_columnar(path: PathLike, *,

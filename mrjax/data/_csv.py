@@ -18,7 +18,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
-import itertools
 import re
 from collections.abc import Iterator, Mapping
 from typing import BinaryIO
@@ -153,11 +152,13 @@ def _cut(buf: bytes, odd: bool) -> int:
     return p
 
 
-def byte_blocks(fh: BinaryIO, size: int = BLOCK_BYTES) -> Iterator[tuple[bytes, int, int]]:
-    """The file in blocks of about `size` bytes, each ending at a line end outside quotes (the
-    last one at the end of the file), with the line each starts on (from 1) and its number of
-    line ends."""
-    line, carry, odd = 1, b"", False
+def byte_blocks(fh: BinaryIO, size: int = BLOCK_BYTES, line: int = 1,
+                count: bool = True) -> Iterator[tuple[bytes, int, int]]:
+    """The file from its current position in blocks of about `size` bytes, each ending at a
+    line end outside quotes (the last one at the end of the file), with the line each starts
+    on (`line` the first) and its number of line ends; `count`: the bytes count on the
+    progress bar."""
+    carry, odd = b"", False
     while True:
         data = fh.read(size)
         buf = carry + data if carry else data
@@ -165,7 +166,8 @@ def byte_blocks(fh: BinaryIO, size: int = BLOCK_BYTES) -> Iterator[tuple[bytes, 
             if buf:
                 yield buf, line, count_lines(buf)
             return
-        advance(len(data))
+        if count:
+            advance(len(data))
         p = _cut(buf, odd)
         if p == 0:  # no line end outside quotes yet
             carry = buf
@@ -436,6 +438,79 @@ def _join(parts: list[_Part], lay: _Layout) -> tuple[int, dict[Column, np.ndarra
     return n, values, lines, blank, empty
 
 
+#: Bytes read at a time while looking for the header and the first rows.
+_HEAD_BYTES = 2**16
+
+
+class CsvFile:
+    """A CSV file opened for reading: its head read (the layout of its rows, the columns, the
+    notes), its body read piece by piece (:meth:`pieces`), from any piece's offset
+    (:meth:`read_piece`), each piece parsed on its own (:meth:`parse`) and the parts joined
+    into one table (:meth:`table`)."""
+
+    def __init__(self, path: PathLike, *, columns: Mapping[str, Column] | None,
+                 wide: Mapping[str, tuple[Column, ...]] | None = None, strict: bool):
+        self.path = check_file(path)
+        self.src, self.stem, self.strict = str(path), stem(path), strict
+        self.wide = dict(wide or {})
+        with open(self.path, "rb") as fh:
+            data, head = b"", None
+            for block, _, _ in byte_blocks(fh, _HEAD_BYTES, count=False):
+                data += block
+                head = _head(data, False, self.src, columns, self.wide, strict)
+                if head is not None:
+                    break
+        if head is None:
+            if not data.decode("utf-8-sig", errors="replace").strip():
+                raise InputError(f"{self.src}: file is empty")
+            head = _head(data, True, self.src, columns, self.wide, strict)
+        self.head, self.layout, self.columns = head, head.layout, head.columns
+
+    def pieces(self, block_bytes: int = BLOCK_BYTES) -> Iterator[tuple[int, bytes, int, int]]:
+        """`(byte offset, bytes, first line, line ends)` of each piece of the body, in order."""
+        with open(self.path, "rb") as fh:
+            fh.seek(self.head.offset)
+            offset = self.head.offset
+            for block, line, ends in byte_blocks(fh, block_bytes, line=self.head.first_line):
+                yield offset, block, line, ends
+                offset += len(block)
+
+    def read_piece(self, offset: int, nbytes: int) -> bytes:
+        """The bytes of a piece that :meth:`pieces` gave."""
+        with open(self.path, "rb") as fh:
+            fh.seek(offset)
+            return fh.read(nbytes)
+
+    def parse(self, data: bytes, first_line: int, ends: int, exact: bool = False) -> _Part:
+        """The rows of a piece: by pyarrow where it reads them cleanly, else (or with
+        `exact`) by the exact reader."""
+        part = None if exact else _fast(data, first_line, ends, self.layout)
+        return part if part is not None else _exact(data, first_line, self.layout)
+
+    def table(self, parts: list[_Part], *, whole: bool = True) -> ReadColumns:
+        """The parts as one table; `whole`: the parts are the whole body (the notes on blank
+        lines and unused columns are then those of the file, and no rows is an error)."""
+        lay, notes = self.layout, list(self.head.notes)
+        n, values, lines, blank, empty = _join(parts, lay)
+        blank += self.head.blank
+        if whole and blank and not self.strict:
+            notes.insert(1 if lay.trailing else 0, f"{blank} empty line(s) skipped")
+        if whole and n == 0:
+            raise InputError(f"{self.src}: header only, no data rows")
+        if whole and not self.strict:
+            unused = []
+            for j in lay.unused:
+                if empty[j] >= _MOSTLY_EMPTY * n:
+                    notes.append(f"column {lay.names[j]!r} is mostly empty ({n - empty[j]} of "
+                                 f"{n} cells filled), not used")
+                else:
+                    unused.append(repr(lay.names[j]))
+            if unused:
+                notes.append(f"column(s) {', '.join(unused)} not used")
+        return ReadColumns(self.src, self.stem, n, dict(self.columns), self.wide, values, lines,
+                           notes)
+
+
 def read_csv(
     path: PathLike,
     *,
@@ -448,48 +523,10 @@ def read_csv(
     """Read the columns of a CSV file: those given, or those named `<quantity>_<unit>` (see
     the module notes). `block_bytes`: the size of a block; `exact`: read every block with the
     exact reader (the reference the fast one is tested against)."""
-    p = check_file(path)
-    src = str(path)
-    wide = dict(wide or {})
-    with open(p, "rb") as fh:
-        blocks = byte_blocks(fh, block_bytes)
-        data, head = b"", None
-        for block, _, _ in blocks:
-            data += block
-            head = _head(data, False, src, columns, wide, strict)
-            if head is not None:
-                break
-        if head is None:
-            if not data.decode("utf-8-sig", errors="replace").strip():
-                raise InputError(f"{src}: file is empty")
-            head = _head(data, True, src, columns, wide, strict)
-        lay, notes = head.layout, head.notes
-        parts = []
-        rest = data[head.offset:]
-        pieces = itertools.chain([(rest, head.first_line, count_lines(rest))], blocks)
-        del data, rest
-        for piece, start, ends in pieces:
-            if not piece:
-                continue
-            part = None if exact else _fast(piece, start, ends, lay)
-            parts.append(part if part is not None else _exact(piece, start, lay))
-    n, values, lines, blank, empty = _join(parts, lay)
-    blank += head.blank
-    if blank and not strict:
-        notes.insert(1 if lay.trailing else 0, f"{blank} empty line(s) skipped")
-    if n == 0:
-        raise InputError(f"{src}: header only, no data rows")
-    if not strict:
-        unused = []
-        for j in lay.unused:
-            if empty[j] >= _MOSTLY_EMPTY * n:
-                notes.append(f"column {lay.names[j]!r} is mostly empty ({n - empty[j]} of {n} "
-                             f"cells filled), not used")
-            else:
-                unused.append(repr(lay.names[j]))
-        if unused:
-            notes.append(f"column(s) {', '.join(unused)} not used")
-    return ReadColumns(src, stem(path), n, head.columns, wide, values, lines, notes)
+    f = CsvFile(path, columns=columns, wide=wide, strict=strict)
+    parts = [f.parse(data, line, ends, exact) for _, data, line, ends in f.pieces(block_bytes)
+             if data]
+    return f.table(parts)
 
 
 def load_csv(path: PathLike, *, velocity_window_s: float | None = None) -> list[Condition]:
