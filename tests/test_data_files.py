@@ -233,3 +233,67 @@ def test_load_draws_a_progress_bar_when_asked(tmp_path, monkeypatch, capsys):
     assert "loading" in err and "B" in err
     md.load(path, progress=False)
     assert capsys.readouterr().err == ""
+
+
+# --------------------------------------------------------------------------------------------
+# A source: tests indexed in the files and read a chunk at a time
+
+
+def _lazy(tmp_path, name, writer):
+    """A file of 5 tests written by `writer(conds, path)`, its source scanned holding nothing
+    (pieces of 2 kB for CSV), and the reference `load` of it."""
+    ref = _tests(5, samples=(150, 120, 90, 140, 60))
+    path = tmp_path / name
+    writer(ref, path)
+    return md.Source.scan(path, keep_bytes=0), md.load(path), ref
+
+
+@pytest.mark.parametrize("name", ["f.csv", "i.csv", "f.parquet", "f.feather"])
+def test_source_reads_any_subset_as_load_does(tmp_path, monkeypatch, name):
+    from mrjax.data import _source
+
+    monkeypatch.setattr(_source, "STREAM_BLOCK_BYTES", 2048)
+
+    def write(conds, path):
+        if path.suffix == ".csv":
+            path.write_text(_csv_text(conds, interleave=path.stem == "i"))
+        else:
+            _write(md.to_frame(conds), path)
+
+    src, full, ref = _lazy(tmp_path, name, write)
+    assert src.n_conditions == 5 and not src.kept
+    assert list(src.n_samples) == [150, 120, 90, 140, 60] and src.length == 150
+    for index in ([4, 0], [1], [3, 2, 1], np.arange(5) % 2 == 0):
+        got = src.conditions(index)
+        want = [full[i] for i in np.arange(5)[np.asarray(index)]]
+        _same(got, want)
+    b = src.batch([2, 3], length=src.length)
+    assert b.length == 150 and b.labels == ("t2", "t3")
+    _same(md.Source.scan(tmp_path / name).conditions(), ref)  # kept: read once
+    assert md.Source.scan(tmp_path / name).kept
+
+
+def test_source_of_several_files_and_layouts(tmp_path):
+    from helpers import OPTIONS_C, write_layout_c
+
+    ref = _tests(3)
+    for k, c in enumerate(ref):  # UTFSM-style text files, one test each
+        np.savetxt(tmp_path / f"{4 + 2 * k}mm{1 + k}Hz0x{25 * (k + 1)}A.txt",
+                   np.column_stack([c.t, c.x * 1e3, c.xdot * 1e3, c.force]), fmt="%.17g")
+    src = md.Source.scan(tmp_path, keep_bytes=0)
+    full = md.load(tmp_path)
+    _same(src.conditions([2, 0]), [full[2], full[0]])
+    write_layout_c(tmp_path / "wide.mat", n=400)  # one test per column, 5 columns
+    spec = md.DataSpec.from_options(**OPTIONS_C)
+    src = md.Source.scan(tmp_path / "wide.mat", spec=spec, keep_bytes=0)
+    full = md.load(tmp_path / "wide.mat", spec=spec)
+    assert src.n_conditions == 5
+    _same(src.conditions([4, 1]), [full[4], full[1]])
+
+
+def test_source_checks_cells_while_scanning(tmp_path):
+    text = _csv_text(_tests()).split("\n")
+    text[200] = text[200].replace(",", ",x", 1)
+    (tmp_path / "bad.csv").write_text("\n".join(text))
+    raises_one_line(lambda: md.Source.scan(tmp_path / "bad.csv", keep_bytes=0), "line 201",
+                    "'current_A'", "not a number")

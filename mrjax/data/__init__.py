@@ -24,6 +24,7 @@ from ._loaders import load as load
 from ._loaders import load_batch as load_batch
 from ._loaders import load_file as load_file
 from ._mat import load_mat as load_mat
+from ._source import Source as Source
 from ._spec import DataSpec as DataSpec
 from ._spectrum import estimate_motion as estimate_motion
 from ._synthetic import PAPER_COEFFICIENTS as PAPER_COEFFICIENTS

@@ -67,6 +67,12 @@ class LineMap:
         k = int(np.searchsorted(self.rows, i, side="right")) - 1
         return int(self.lines[k] + (i - self.rows[k]))
 
+    def taken(self, rows: np.ndarray) -> LineMap:
+        """The map of the rows `rows` (increasing) taken out of this one."""
+        rows = np.asarray(rows, dtype=np.int64)
+        k = np.searchsorted(self.rows, rows, side="right") - 1
+        return LineMap.of(self.lines[k] + (rows - self.rows[k]))
+
 
 @dataclasses.dataclass(frozen=True)
 class Codes:
@@ -104,6 +110,16 @@ def groups(keys: Codes) -> dict[str, Rows]:
     bounds = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=len(keys.names)))])
     return {name: order[bounds[k]:bounds[k + 1]] for k, name in enumerate(keys.names)
             if bounds[k + 1] > bounds[k]}
+
+
+def condition_keys(read: ReadColumns) -> list[str | None]:
+    """The `condition` values of a read file in the order :func:`assemble` returns their
+    conditions (each repeated for the tests of a wide layout), or `[None]` without that
+    column."""
+    if "condition" not in read.columns:
+        return [None]
+    keys = read.values[read.columns["condition"]]
+    return list(groups(keys if isinstance(keys, Codes) else Codes.of(keys)))
 
 
 def _row(idx: Rows, k: int) -> int:

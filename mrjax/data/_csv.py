@@ -319,8 +319,10 @@ def _head(data: bytes, eof: bool, src: str, columns: Mapping[str, Column] | None
 
 
 @dataclasses.dataclass
-class _Part:
-    """The rows of one piece of the body."""
+class Part:
+    """The rows of one piece of the body: `n` rows, the values of the columns read (float64
+    arrays, arrow or numpy; `Codes` of the `condition` column), the line of each row, the
+    blank lines skipped and the empty cells of each unused column."""
 
     n: int
     values: dict[Column, np.ndarray | Codes]
@@ -329,7 +331,7 @@ class _Part:
     empty: dict[int, int]  # unused column -> empty cells
 
 
-def _exact(data: bytes, first_line: int, lay: _Layout) -> _Part:
+def _exact(data: bytes, first_line: int, lay: _Layout) -> Part:
     """Read a piece row by row with Python's csv module: the format's rules and messages."""
     rows, lines, blank = [], [], 0
     for row, line in _rows(data.decode("utf-8", errors="replace"), lay.delimiter, lay.src,
@@ -360,10 +362,10 @@ def _exact(data: bytes, first_line: int, lay: _Layout) -> _Part:
         values[c] = out
     empty = {} if lay.strict else {
         j: sum(1 for row in rows if not row[j].strip()) for j in lay.unused}
-    return _Part(len(rows), values, LineMap.of(lines), blank, empty)
+    return Part(len(rows), values, LineMap.of(lines), blank, empty)
 
 
-def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> _Part | None:
+def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> Part | None:
     """Read a piece (`ends` line ends) with pyarrow, or None where it does not read it as the
     exact reader would (see the module notes). Numeric columns stay arrow arrays (joined
     into one numpy array per column by :func:`_join`)."""
@@ -420,10 +422,10 @@ def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> _Part | None
                 return None
         else:
             empty[j] = k
-    return _Part(table.num_rows, values, LineMap.run(first_line), 0, empty)
+    return Part(table.num_rows, values, LineMap.run(first_line), 0, empty)
 
 
-def _join(parts: list[_Part], lay: _Layout) -> tuple[int, dict[Column, np.ndarray | Codes],
+def _join(parts: list[Part], lay: _Layout) -> tuple[int, dict[Column, np.ndarray | Codes],
                                                     LineMap, int, dict[int, int]]:
     """The parts as one table: codes of the text columns merged by label."""
     n = sum(p.n for p in parts)
@@ -481,13 +483,13 @@ class CsvFile:
             fh.seek(offset)
             return fh.read(nbytes)
 
-    def parse(self, data: bytes, first_line: int, ends: int, exact: bool = False) -> _Part:
+    def parse(self, data: bytes, first_line: int, ends: int, exact: bool = False) -> Part:
         """The rows of a piece: by pyarrow where it reads them cleanly, else (or with
         `exact`) by the exact reader."""
         part = None if exact else _fast(data, first_line, ends, self.layout)
         return part if part is not None else _exact(data, first_line, self.layout)
 
-    def table(self, parts: list[_Part], *, whole: bool = True) -> ReadColumns:
+    def table(self, parts: list[Part], *, whole: bool = True) -> ReadColumns:
         """The parts as one table; `whole`: the parts are the whole body (the notes on blank
         lines and unused columns are then those of the file, and no rows is an error)."""
         lay, notes = self.layout, list(self.head.notes)

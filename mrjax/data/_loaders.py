@@ -22,16 +22,24 @@ metadata, time axis, velocity and the sanity checks are handled once for all for
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
 from .._errors import InputError
-from ._build import assemble
-from ._columnar import FEATHER_SUFFIXES, PARQUET_SUFFIXES, load_columnar, read_columnar
+from ._build import ReadColumns, assemble
+from ._columnar import (
+    FEATHER_SUFFIXES,
+    PARQUET_SUFFIXES,
+    ColumnarFile,
+    load_columnar,
+    read_columnar,
+)
+from ._columns import Meta
 from ._condition import Batch, Condition, make_batch
-from ._csv import load_csv, read_csv
+from ._csv import CsvFile, load_csv, read_csv
 from ._files import PathLike, find_files, label_meta
 from ._mat import load_mat, read_mat
 from ._progress import load_progress
@@ -42,6 +50,8 @@ _LOADERS = {".csv": load_csv, ".txt": load_txt, ".dat": load_txt, ".mat": load_m
             **{s: load_columnar for s in PARQUET_SUFFIXES + FEATHER_SUFFIXES}}
 _READERS = {".csv": read_csv, ".txt": read_text, ".dat": read_text, ".mat": read_mat,
             **{s: read_columnar for s in PARQUET_SUFFIXES + FEATHER_SUFFIXES}}
+#: The formats read piece by piece (a chunk of tests can be read alone).
+_PIECEWISE = {".csv": CsvFile, **{s: ColumnarFile for s in PARQUET_SUFFIXES + FEATHER_SUFFIXES}}
 
 
 
@@ -108,37 +118,86 @@ def load(
 
 
 def _load(files: list[Path], spec: DataSpec | None, options: dict) -> list[Condition]:
-    if spec is not None and not spec.is_empty:
-        if options:
+    out: list[Condition] = []
+    for f in files:
+        out += FilePlan.of(f, spec, options).load()
+    warn_unmatched(spec, files)
+    return out
+
+
+def warn_unmatched(spec: DataSpec | None, files: Sequence[Path]) -> None:
+    """Warn about each `files` pattern of `spec` that matches none of `files`."""
+    for pattern in spec.files if spec is not None else ():
+        if not any(spec_matches(pattern, f) for f in files):
+            warnings.warn(f"{spec.origin or 'data spec'}: files entry {pattern!r} matches "
+                          f"none of the {len(files)} file(s) loaded", RuntimeWarning,
+                          stacklevel=4)
+
+
+@dataclasses.dataclass(frozen=True)
+class FilePlan:
+    """How `mrjax.data.load` reads one file (by `spec`, or by its format's conventions and
+    `options`): the whole file at once (:meth:`load`), or, for the formats read piece by piece
+    (CSV, Parquet, Feather), the opened reader (:meth:`open`) whose table :meth:`finish`
+    turns into conditions."""
+
+    path: Path
+    spec: DataSpec | None
+    options: dict
+
+    @classmethod
+    def of(cls, path: Path, spec: DataSpec | None, options: dict) -> FilePlan:
+        """The plan of one file; raises for options that its loader does not take."""
+        if spec is not None and spec.is_empty:
+            spec = None
+        if spec is not None and options:
             raise InputError(
                 f"give a spec or loader options ({', '.join(options)}), not both; the spec "
                 f"covers them (e.g. velocity_window)"
             )
-        out: list[Condition] = []
-        for f in files:
-            out += load_file(f, spec)
-        for pattern in spec.files:
-            if not any(spec_matches(pattern, f) for f in files):
-                warnings.warn(f"{spec.origin or 'data spec'}: files entry {pattern!r} matches "
-                              f"none of the {len(files)} file(s) loaded", RuntimeWarning,
-                              stacklevel=3)
-        return out
-    out = []
-    for f in files:
-        loader = _LOADERS[f.suffix.lower()]
-        accepted = [
-            n for n, prm in inspect.signature(loader).parameters.items()
-            if prm.kind is inspect.Parameter.KEYWORD_ONLY
-        ]
-        bad = [k for k in options if k not in accepted]
-        if bad:
-            raise InputError(
-                f"{f}: option {bad[0]!r} does not apply to {f.suffix.lower()} files; "
-                f"their options: {', '.join(accepted)}"
-            )
-        result = loader(f, **options)
-        out += result if isinstance(result, list) else [result]
-    return out
+        suffix = path.suffix.lower()
+        if spec is None:
+            accepted = [n for n, prm in inspect.signature(_LOADERS[suffix]).parameters.items()
+                        if prm.kind is inspect.Parameter.KEYWORD_ONLY]
+            bad = [k for k in options if k not in accepted]
+            if bad:
+                raise InputError(
+                    f"{path}: option {bad[0]!r} does not apply to {suffix} files; "
+                    f"their options: {', '.join(accepted)}"
+                )
+        return cls(path, spec, dict(options))
+
+    def load(self) -> list[Condition]:
+        """The conditions of the whole file."""
+        if self.spec is not None:
+            return load_file(self.path, self.spec)
+        result = _LOADERS[self.path.suffix.lower()](self.path, **self.options)
+        return result if isinstance(result, list) else [result]
+
+    def open(self) -> CsvFile | ColumnarFile | None:
+        """The file opened for reading piece by piece, or None for a format read whole."""
+        kind = _PIECEWISE.get(self.path.suffix.lower())
+        if kind is None:
+            return None
+        if self.spec is None:
+            return kind(self.path, columns=None, strict=True)
+        columns = dict(self.spec.columns) if (self.spec.columns or self.spec.wide) else None
+        return kind(self.path, columns=columns, wide=self.spec.wide, strict=False)
+
+    def finish(self, read: ReadColumns) -> list[Condition]:
+        """The conditions of (a part of) the table of an opened file, as :meth:`load` makes
+        them."""
+        if self.spec is None:
+            return assemble(read, meta=Meta(), window_s=self.options.get("velocity_window_s"),
+                            strict=True)
+        return assemble(read, meta=self.spec.file_meta(self.path), wide_meta=self.spec.wide_meta,
+                        window_s=self.spec.velocity_window, strict=False,
+                        fallback=label_meta(self.path))
+
+    @property
+    def n_wide(self) -> int:
+        """Tests per row: the columns of a wide layout (1 without one)."""
+        return max(1, self.spec.n_wide) if self.spec is not None else 1
 
 
 def load_batch(
