@@ -16,10 +16,9 @@ import jax as _jax
 if _os.environ.get("MRJAX_X64", "1") != "0":
     _jax.config.update("jax_enable_x64", True)
 
-import sys as _sys
-
 from . import comparison as comparison
 from . import data as data
+from . import engine as engine
 from . import fitting as fitting
 from . import generalize as generalize
 from . import models as models
@@ -29,9 +28,7 @@ from . import refine as refine
 from ._errors import InputError as InputError
 from .comparison import CompareResult as CompareResult
 from .comparison import compare as compare
+from .engine import Polish as Polish
+from .engine import Swarm as Swarm
 from .fitting import FitResult as FitResult
 from .fitting import fit as fit
-
-# `mrjax.fit` (the module) became `mrjax.fitting`, so that the function `mrjax.fit` no longer
-# hides it; `from mrjax.fit import ...` keeps working for one release.
-_sys.modules.setdefault(__name__ + ".fit", fitting)

@@ -8,6 +8,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -165,3 +166,16 @@ def exact_decode(obj):
     if isinstance(obj, list):
         return [exact_decode(v) for v in obj]
     return obj
+
+
+def csv_cell(v: Any) -> str:
+    """One CSV cell: strings quoted when needed, booleans `true`/`false`, integers as such,
+    floats by `repr` (round-trip exact), NaN/inf empty."""
+    if isinstance(v, str):
+        return '"' + v.replace('"', '""') + '"' if ("," in v or '"' in v) else v
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    v = float(v)
+    return "" if not math.isfinite(v) else repr(v)

@@ -551,28 +551,3 @@ def cast_floats(tree: Any, dtype: Any) -> Any:
         return a
 
     return jax.tree.map(cast, tree)
-
-
-# Names that lived here before the swarm engine was separated from the model glue; kept
-# importable from `mrjax.pso` for one release (see the README).
-_MOVED = {
-    "fit_swarm": "mrjax.fitting", "ModelSwarm": "mrjax.fitting",
-    "FullObjective": "mrjax.objective", "SeparableObjective": "mrjax.objective",
-    "solve_linear": "mrjax.objective", "condition_data": "mrjax.objective",
-    "check_bounds": "mrjax.models", "box_corners": "mrjax.models",
-    "resolve_model": "mrjax.models", "SWARM_MAX_SUBSTEPS": "mrjax.models",
-}
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-
-        warnings.warn(f"mrjax.pso.{name} moved to {_MOVED[name]}.{name}", DeprecationWarning,
-                      stacklevel=2)
-        moved = getattr(importlib.import_module(_MOVED[name]), name)
-        if name != "resolve_model":
-            return moved
-        return lambda model, rows, batch, *, cap=None: moved(  # the old signature
-            model, rows, batch.xdot, batch.dt, batch.mask, cap=cap)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

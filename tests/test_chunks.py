@@ -15,7 +15,8 @@ import pytest
 import mrjax
 from mrjax.cli import main
 from mrjax.data import make_batch, paper_grid
-from mrjax.fitting import FitResult, condition_keys, parse_memory, plan_chunks
+from mrjax.fitting import FitResult, parse_memory, plan_chunks
+from mrjax.fitting._plan import condition_keys
 
 FIELDS = ("labels", "current", "frequency", "amplitude", "n_samples", "theta", "rms", "nrmse",
           "pso_rms", "generations", "stopped_by_criterion", "history", "polish_steps",
@@ -128,7 +129,7 @@ def test_chunked_equals_unchunked(model, kwok30, dahl30):
     one = mrjax.fit(model, batch, **options)
     chunked = mrjax.fit(model, batch, chunk_size=1, **options)  # the smallest chunks allowed
     assert_identical(one, chunked)
-    assert set(chunked.timings) >= {"prepare", "swarm", "evaluate", "total"}
+    assert set(chunked.timings) >= {"prepare", "swarm", "start", "total"}
 
 
 def test_progress_bar_counts_chunks_and_conditions(capsys):
@@ -167,7 +168,7 @@ def test_budget_too_small_fails_before_any_work(kwok30, tmp_path):
 
 
 class Interrupt:
-    """Replaces the swarm stage: fails at call `fail_at` (1-based), counts the calls."""
+    """Replaces the fit of one chunk: fails at call `fail_at` (1-based), counts the calls."""
 
     def __init__(self, stage, fail_at, exc):
         self.stage, self.fail_at, self.exc, self.calls = stage, fail_at, exc, 0
@@ -185,16 +186,16 @@ def test_journal_resume_in_python(kwok30, tmp_path, monkeypatch):
     kw = dict(KWOK, method="pso", uncertainty=False, chunk_size=1)
     whole = mrjax.fit("kwok", kwok30, **kw)
     journal = tmp_path / "journal"
-    stage = Interrupt(chunks.run_swarm, 2, RuntimeError("power cut"))
-    monkeypatch.setattr(chunks, "run_swarm", stage)
+    stage = Interrupt(chunks.fit_chunk, 2, RuntimeError("power cut"))
+    monkeypatch.setattr(chunks, "fit_chunk", stage)
     with pytest.raises(RuntimeError, match="power cut"):
         mrjax.fit("kwok", kwok30, journal=journal, **kw)
     assert sorted(p.name for p in journal.iterdir()) == ["chunk-00001.json", "manifest.json"]
     manifest = json.loads((journal / "manifest.json").read_text())
     assert manifest["n_chunks"] == 3 and manifest["chunk_size"] == 12
     # resume: only the two missing chunks run; the result is the uninterrupted one
-    stage = Interrupt(chunks.run_swarm.stage, 0, None)
-    monkeypatch.setattr(chunks, "run_swarm", stage)
+    stage = Interrupt(chunks.fit_chunk.stage, 0, None)
+    monkeypatch.setattr(chunks, "fit_chunk", stage)
     resumed = mrjax.fit("kwok", kwok30, journal=journal, resume=True, **kw)
     assert stage.calls == 2
     assert_identical(whole, resumed)
@@ -230,7 +231,7 @@ def test_cli_resume_gives_the_same_bytes(csv30, tmp_path, monkeypatch, capsys):
             "--seed", "3"]
     assert main(["fit", *argv, "--out", str(tmp_path / "whole")]) == 0
     out = tmp_path / "cut"
-    monkeypatch.setattr(chunks, "run_swarm", Interrupt(chunks.run_swarm, 2, KeyboardInterrupt()))
+    monkeypatch.setattr(chunks, "fit_chunk", Interrupt(chunks.fit_chunk, 2, KeyboardInterrupt()))
     assert main(["fit", *argv, "--out", str(out)]) == 130  # interrupted after the first chunk
     assert sorted(_files(out)) == [".mrjax-journal/chunk-00001.json",
                                    ".mrjax-journal/manifest.json"]
@@ -241,8 +242,8 @@ def test_cli_resume_gives_the_same_bytes(csv30, tmp_path, monkeypatch, capsys):
     err = [x for x in capsys.readouterr().err.strip().splitlines() if "error" in x]
     assert len(err) == 1 and err[0].startswith("mrjax: error: cannot resume")
     assert _files(out) == before
-    stage = Interrupt(chunks.run_swarm.stage, 0, None)
-    monkeypatch.setattr(chunks, "run_swarm", stage)
+    stage = Interrupt(chunks.fit_chunk.stage, 0, None)
+    monkeypatch.setattr(chunks, "fit_chunk", stage)
     assert main(["fit", *argv, "--out", str(out), "--resume"]) == 0
     assert stage.calls == 2  # only the missing chunks
     assert _files(out) == _files(tmp_path / "whole")  # byte for byte; the journal is gone

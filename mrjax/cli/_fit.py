@@ -11,10 +11,10 @@ from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, check_writable, json_bytes
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
+from ..data import fit_mask
 from ..fitting import fit
 from ..generalize import GeneralizedModel, generalize, identify
 from ..models import get
-from ..objective import fit_mask
 from ._common import (
     DEFAULT_OUT,
     add_data_options,

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from .._tables import format_table
 from ..models import get, names
-from ..report import format_table
 from ._common import DEFAULT_OUT, nonneg_int
 
 

@@ -9,11 +9,10 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, check_writable, json_bytes, json_safe
+from .._io import atomic_output, check_writable, csv_cell, json_bytes, json_safe
+from .._tables import format_table
 from ..data import ESTIMATED_FIELDS
-from ..fitting import csv_cell
 from ..generalize import GeneralizedModel
-from ..report import format_table
 from ._common import (
     DEFAULT_OUT,
     add_data_options,

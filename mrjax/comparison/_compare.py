@@ -10,11 +10,10 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ..data import Batch, make_batch
-from ..fitting import FitResult, as_batch, fit
+from ..data import Batch, as_batch, fit_mask, make_batch
+from ..fitting import FitResult, fit
 from ..generalize import generalize
 from ..models import check_bounds, get, names
-from ..objective import fit_mask
 from ._criteria import information_criteria, n_free_parameters
 from ._folds import Plan, plan_validation
 from ._result import CompareResult

@@ -9,9 +9,9 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import json_safe
+from .._io import csv_cell, json_safe
 from ..data import Batch
-from ..fitting import FitResult, csv_cell
+from ..fitting import FitResult
 
 #: The convention of the criteria, written into compare.json.
 CRITERIA_NOTE = ("Gaussian likelihood of the residuals per test: AIC = n ln(RSS/n) + 2k, "
@@ -242,7 +242,7 @@ class CompareResult:
     def table(self) -> str:
         """A readable fixed-width table: one row per model from best to worst (summed BIC),
         then the ranking line with the runner-up margins."""
-        from ..report import format_table  # imported here: mrjax.report loads matplotlib
+        from .._tables import format_table  # imported here: mrjax.report loads matplotlib
 
         summ = {s["model"]: s for s in self.summary()}
         head = ["rank", "model", "k", "NRMSE% med", "worst", "sum AIC", "dAIC", "sum BIC",
@@ -278,7 +278,7 @@ class CompareResult:
 
     def test_table(self) -> str:
         """Per-test NRMSE [%] of every model and the BIC winner, one row per test."""
-        from ..report import format_table
+        from .._tables import format_table
 
         head = ["test", "I[A]", "f[Hz]", "A[mm]"] + [f"{m} %" for m in self.models] + ["best"]
         fmt = ["", ".3g", ".3g", ".3g"] + [".2f"] * len(self.models) + [""]

@@ -1,7 +1,8 @@
-"""Test-condition data: conditions, padded batches, data specs, loaders, units, velocity,
-sanity checks, reports and the synthetic grid."""
+"""Test-condition data: conditions, padded batches and their masks, the swarm's views of
+records, data specs, loaders, units, velocity, sanity checks, reports and the synthetic grid."""
 
 from ._checks import check_condition as check_condition
+from ._coerce import as_batch as as_batch
 from ._columnar import load_columnar as load_columnar
 from ._columns import ROLES as ROLES
 from ._columns import Column as Column
@@ -23,6 +24,8 @@ from ._frame import to_frame as to_frame
 from ._loaders import load as load
 from ._loaders import load_batch as load_batch
 from ._loaders import load_file as load_file
+from ._mask import check_mask as check_mask
+from ._mask import fit_mask as fit_mask
 from ._mat import load_mat as load_mat
 from ._source import Source as Source
 from ._spec import DataSpec as DataSpec
@@ -47,3 +50,13 @@ from ._units import unit_scale as unit_scale
 from ._velocity import VelocityWindow as VelocityWindow
 from ._velocity import estimate_velocity as estimate_velocity
 from ._velocity import velocity_window as velocity_window
+from ._view import BROADBAND_SAMPLES_PER_PERIOD as BROADBAND_SAMPLES_PER_PERIOD
+from ._view import ESTIMATED_SAMPLES_PER_PERIOD as ESTIMATED_SAMPLES_PER_PERIOD
+from ._view import JOINT_SAMPLES_PER_PERIOD as JOINT_SAMPLES_PER_PERIOD
+from ._view import MAX_SAMPLES as MAX_SAMPLES
+from ._view import MIN_PERIODS as MIN_PERIODS
+from ._view import MIN_SAMPLES as MIN_SAMPLES
+from ._view import SAMPLES_PER_PERIOD as SAMPLES_PER_PERIOD
+from ._view import View as View
+from ._view import swarm_view as swarm_view
+from ._view import view_plan as view_plan

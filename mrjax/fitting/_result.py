@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,7 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, exact_decode, exact_encode, json_safe
+from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model
 
@@ -86,13 +84,6 @@ class FitResult:
     def param_names(self) -> tuple[str, ...]:
         """Parameter names, in vector order."""
         return self.model.param_names
-
-    @property
-    def swarm(self) -> str:
-        """Deprecated alias of `swarm_mode` (kept for one release)."""
-        warnings.warn("FitResult.swarm is deprecated: use FitResult.swarm_mode",
-                      DeprecationWarning, stacklevel=2)
-        return self.swarm_mode
 
     @property
     def n_conditions(self) -> int:
@@ -199,7 +190,7 @@ class FitResult:
     def table(self, *, max_rows: int | None = None) -> str:
         """A readable fixed-width table: one row per condition, then the medians."""
         # imported here: mrjax.report loads matplotlib, which `import mrjax` does not need
-        from ..report import format_table
+        from .._tables import format_table
 
         head = ["condition", "I[A]", "f[Hz]", "A[mm]", "RMS[N]", "NRMSE%", "gens", "stop"]
         head += list(self.param_names)
@@ -289,19 +280,6 @@ class FitResult:
             vals += list(self.theta[i]) + list(self.stderr[i])
             out.append(",".join(csv_cell(v) for v in vals))
         return "\n".join(out) + "\n"
-
-
-def csv_cell(v: Any) -> str:
-    """One CSV cell: strings quoted when needed, booleans `true`/`false`, integers as such,
-    floats by `repr` (round-trip exact), NaN/inf empty."""
-    if isinstance(v, str):
-        return '"' + v.replace('"', '""') + '"' if ("," in v or '"' in v) else v
-    if isinstance(v, (bool, np.bool_)):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    v = float(v)
-    return "" if not math.isfinite(v) else repr(v)
 
 
 def save(

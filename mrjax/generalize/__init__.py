@@ -86,6 +86,9 @@ the limits, flagged, when the force is out of reach. :func:`closed_loop` simulat
 one-storey structure with the damper driven by it under a skyhook law.
 """
 
+from ._coding import DELTA_RANGE as DELTA_RANGE
+from ._coding import LOG_FLOOR as LOG_FLOOR
+from ._coding import Q_RANGE as Q_RANGE
 from ._generalize import generalize as generalize
 from ._identify import LAG_BOUNDS as LAG_BOUNDS
 from ._identify import MIN_GENERATIONS_DYNAMIC as MIN_GENERATIONS_DYNAMIC
@@ -96,9 +99,6 @@ from ._inverse import Inverse as Inverse
 from ._inverse import closed_loop as closed_loop
 from ._inverse import inverse as inverse
 from ._inverse import inverse_current as inverse_current
-from ._joint import DELTA_RANGE as DELTA_RANGE
-from ._joint import LOG_FLOOR as LOG_FLOOR
-from ._joint import Q_RANGE as Q_RANGE
 from ._laws import COMMAND_UNITS as COMMAND_UNITS
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS

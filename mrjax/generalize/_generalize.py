@@ -13,27 +13,17 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ..data import Batch
-from ..fitting import JOINT_SAMPLES_PER_PERIOD, FitResult, as_batch
-from ..fitting import swarm_view as make_view
+from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, as_batch, check_mask
+from ..data import swarm_view as make_view
+from ..engine import Polish, Swarm, settings
+from ..fitting import FitResult
 from ..models import AbstractModel, resolve_model
-from ..objective import check_mask
 from ..pso import PSOParams
-from ..refine import DEFAULT_TOL
-from ._joint import (
-    N_LEVELS,
-    JointOutcome,
-    JointProblem,
-    Layout,
-    bounded_box,
-    build_objective,
-    joint_fit,
-    make_rows,
-    packed_rows,
-    total_rms_of,
-)
+from ._coding import Layout, bounded_box, build_objective, total_rms_of
+from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
 from ._model import GeneralizedModel, LawUncertainty
+from ._rows import make_rows, packed_rows
 from ._two_step import covariances, law_spec, two_step_coefficients
 
 LawKind = Literal["poly", "exp"]
@@ -154,7 +144,8 @@ def _search_box(model: AbstractModel, start: TwoStep):
     return nu0, half, box_lo, box_hi
 
 
-def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool) -> JointProblem:
+def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool,
+                   pso_params: PSOParams | None) -> LawsProblem:
     """The joint fit's problem around the two-step laws: the swarm searches the box of
     :func:`_search_box` (a Bouc-Wen shape as `(log delta, q)` around the per-condition values),
     intersected with the polish's box (`bounded_box`: every node value within the model's
@@ -187,9 +178,8 @@ def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool) -> JointP
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          np.asarray(v.batch.current, float))
     lo, hi = float(start.levels.min()), float(start.levels.max())
-    return JointProblem(model=model, layout=start.layout, objective=obj, lower=s_lo,
-                        upper=s_hi, lm_lower=lm_lo, lm_upper=lm_hi, full=start.rows, view=view,
-                        levels=np.linspace(lo, hi, N_LEVELS))
+    return LawsProblem(model, start.layout, obj, s_lo, s_hi, lm_lo, lm_hi, start.rows, view,
+                       np.linspace(lo, hi, N_LEVELS), start=(nu0, 0.0), pso_params=pso_params)
 
 
 def generalize(
@@ -202,16 +192,17 @@ def generalize(
     weighting: Weighting = "covariance",
     key: ArrayLike | None = None,
     seed: int = 0,
-    n_particles: int = 50,
-    max_generations: int = 100,
+    swarm: Swarm | None = None,
+    polish: Polish | bool | None = None,
+    n_particles: int | None = None,
+    max_generations: int | None = None,
     pso_params: PSOParams | None = None,
-    restarts: int = 1,
-    polish: bool = True,
-    polish_steps: int = 100,
-    tol: float = DEFAULT_TOL,
+    restarts: int | None = None,
+    polish_steps: int | None = None,
+    tol: float | None = None,
     mask: ArrayLike | None = None,
     swarm_view: bool | None = None,
-    uncertainty: bool = True,
+    uncertainty: bool | None = None,
 ) -> GeneralizedModel:
     """Make a current-dependent model from per-condition fits (eq 24-29).
 
@@ -230,15 +221,19 @@ def generalize(
     - `weighting`: two-step averaging, `"covariance"` (default; inverse-covariance weighted,
         generalized least squares) or `"equal"` (the paper's plain means).
     - `key`, `seed`: PRNG key of the joint swarm (default `jax.random.key(seed)`).
-    - `n_particles`, `max_generations`, `pso_params`, `restarts`: joint swarm settings
-        (`restarts` independent swarms in one compiled program, the best kept).
-    - `polish`, `polish_steps`, `tol`: the joint Levenberg-Marquardt polish, its maximum steps
-        per stage and its stop (`mrjax.refine.lm_solve`; the full records to 100 x `tol`
-        after the views, to 10 x `tol` where the views' polish is skipped).
+    - `swarm`: the joint swarm's :class:`mrjax.Swarm` (default `Swarm(max_generations=100)`;
+        its `mode` does not apply: the linear laws are always solved by least squares);
+        `n_particles`, `max_generations`, `pso_params`, `restarts` (independent swarms in one
+        compiled program, the best kept), `swarm_view` set single fields of it.
+    - `polish`: the joint Levenberg-Marquardt polish's :class:`mrjax.Polish` (default
+        `Polish(max_steps=100)`; `False`: no polish); `polish_steps` (per stage), `tol` (the
+        stop of `mrjax.refine.lm_solve`; the full records to 100 x `tol` after the views, to
+        10 x `tol` where the views' polish is skipped) and `uncertainty` set single fields of
+        it.
     - `mask`: (C, T) samples to score (default the batch mask; combined with it). The swarm's
         views score every sample of theirs.
     - `swarm_view`: let the joint swarm and a first polish score the records' views
-        (`mrjax.fitting.swarm_view`); default: for the ODE models.
+        (`mrjax.data.swarm_view`); default: for the ODE models.
     - `uncertainty`: std-errors of the joint coefficients (`GeneralizedModel.uncertainty`).
 
     **Returns:** a :class:`GeneralizedModel` (laws of the current, in A).
@@ -257,20 +252,25 @@ def generalize(
         info["timings"] = timings
         return make_generalized(model, start.layout, start.coef, "two-step", start.rms, rng, used, support,
                      info)
-    use_view = model.dynamic if swarm_view is None else bool(swarm_view)
-    problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view)
-    out = joint_fit(
-        problem, key=jax.random.key(int(seed)) if key is None else key,
-        n_particles=n_particles, max_generations=max_generations, pso_params=pso_params,
-        restarts=restarts, polish=polish, polish_steps=polish_steps, tol=tol, uncertainty=uncertainty,
-        start=(problem.coding.nu0, 0.0), info=info, timings=timings)
+    sw, po, unc = settings(method="pso+lm", swarm=swarm, polish=polish,
+                           swarm_default=Swarm(max_generations=100),
+                           polish_default=Polish(max_steps=100), n_particles=n_particles,
+                           max_generations=max_generations, pso_params=pso_params,
+                           restarts=restarts, swarm_view=swarm_view, polish_steps=polish_steps,
+                           tol=tol, uncertainty=uncertainty)
+    use_view = model.dynamic if sw.view is None else bool(sw.view)
+    problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view, sw.params)
+    out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
+                     key=jax.random.key(int(seed)) if key is None else key)
+    info.update(out.info())
+    timings.update(out.outcome.timings)
     if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)
         out = JointOutcome(coef=start.coef, eta=None, rms=start.rms)
         info["fell_back_to_two_step"] = True
     timings["total"] = time.perf_counter() - t0
     info["timings"] = timings
-    return make_generalized(model, start.layout, out.coef, "joint", out.rms, rng, used, support, info,
-                 uncertainty=law_uncertainty_of(model, start.layout, out))
+    return make_generalized(model, start.layout, out.coef, "joint", out.rms, rng, used, support,
+                            info, uncertainty=law_uncertainty_of(model, start.layout, out))
 
 
 def law_uncertainty_of(model: AbstractModel, layout: Layout, out: JointOutcome

@@ -15,27 +15,17 @@ from jaxtyping import ArrayLike
 
 from .._errors import InputError
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
-from ..data import Batch, Condition
-from ..fitting import JOINT_SAMPLES_PER_PERIOD, as_batch
-from ..fitting import swarm_view as make_view
+from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, Condition, as_batch, fit_mask
+from ..data import swarm_view as make_view
+from ..engine import Polish, Swarm, settings
 from ..models import AbstractModel, check_bounds, get
-from ..objective import fit_mask
 from ..pso import PSOParams
-from ..refine import DEFAULT_TOL
+from ._coding import LOG_FLOOR, Layout, bounded_box, build_objective
 from ._generalize import law_uncertainty_of, make_generalized
-from ._joint import (
-    LOG_FLOOR,
-    N_LEVELS,
-    JointProblem,
-    Layout,
-    bounded_box,
-    build_objective,
-    joint_fit,
-    make_rows,
-    packed_rows,
-)
+from ._joint import N_LEVELS, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, group_currents, nodes
 from ._model import GeneralizedModel, batch_command
+from ._rows import make_rows, packed_rows
 from ._two_step import law_spec
 
 #: Default range of the command filter's rate eta [1/s] searched when the lag is fitted: time
@@ -108,14 +98,15 @@ def identify(
     transient: float | str | None = None,
     key: ArrayLike | None = None,
     seed: int = 0,
-    n_particles: int = 50,
-    max_generations: int = 200,
+    swarm: Swarm | None = None,
+    polish: Polish | bool | None = None,
+    n_particles: int | None = None,
+    max_generations: int | None = None,
     pso_params: PSOParams | None = None,
-    restarts: int = 1,
-    polish: bool = True,
-    polish_steps: int = 200,
-    tol: float = DEFAULT_TOL,
-    uncertainty: bool = True,
+    restarts: int | None = None,
+    polish_steps: int | None = None,
+    tol: float | None = None,
+    uncertainty: bool | None = None,
     swarm_view: bool | None = None,
 ) -> GeneralizedModel:
     """Identify a model whose parameters are laws of the command, from every record at once.
@@ -152,16 +143,17 @@ def identify(
         or None.
     - `key`, `seed`: the swarm's PRNG key (default `jax.random.key(seed)`); same key, same
         result.
-    - `n_particles`, `max_generations`, `pso_params`, `restarts`: swarm settings
-        (`restarts` independent swarms in one compiled program, the best polished; default
-        `pso_params`: window 25 and, for dynamic models, at least
-        `MIN_GENERATIONS_DYNAMIC` generations).
-    - `polish`, `polish_steps`, `tol`: the Levenberg-Marquardt stages (`mrjax.refine.lm_solve`;
-        views to `tol`, full records to 100 x `tol`; 10 x `tol` where the views' polish is
-        skipped).
-    - `uncertainty`: std-errors and identifiability of every coefficient and of $\\eta$.
-    - `swarm_view`: score the swarm and a first polish on the records' views
-        (`mrjax.fitting.swarm_view`); default: for the ODE models.
+    - `swarm`: the swarm's :class:`mrjax.Swarm` (default `Swarm()`; its `params` default:
+        window 25 and, for dynamic models, at least `MIN_GENERATIONS_DYNAMIC` generations;
+        its `mode` does not apply: the linear laws are always solved by least squares);
+        `n_particles`, `max_generations`, `pso_params`, `restarts` (independent swarms in one
+        compiled program, the best polished), `swarm_view` (score the swarm and a first polish
+        on the records' views, `mrjax.data.swarm_view`; default: for the ODE models) set single
+        fields of it.
+    - `polish`: the Levenberg-Marquardt stages' :class:`mrjax.Polish` (default `Polish()`;
+        `False`: no polish; views to `tol`, full records to 100 x `tol`; 10 x `tol` where the
+        views' polish is skipped); `polish_steps`, `tol` and `uncertainty` (std-errors and
+        identifiability of every coefficient and of $\\eta$) set single fields of it.
 
     **Returns:** a :class:`GeneralizedModel` with `method="joint"`, `command_unit` `"A"` or
     `"V"`, `lag` the rate [1/s] (None without a filter), `uncertainty`, and `info` (stage
@@ -222,29 +214,30 @@ def identify(
                            f"delta(u0) = beta(u0) + gamma(u0)")
     full = packed_rows(batch, mask, cmd) if not model.dynamic and cmd.ndim == 1 else \
         make_rows(batch, mask, cmd)
-    use_view = model.dynamic if swarm_view is None else bool(swarm_view)
+    sw, po, unc = settings(method="pso+lm", swarm=swarm, polish=polish, n_particles=n_particles,
+                           max_generations=max_generations, pso_params=pso_params,
+                           restarts=restarts, swarm_view=swarm_view, polish_steps=polish_steps,
+                           tol=tol, uncertainty=uncertainty)
+    use_view = model.dynamic if sw.view is None else bool(sw.view)
     view = None
     if use_view:
         v = make_view(batch, transient, samples_per_period=JOINT_SAMPLES_PER_PERIOD)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          batch_command(v.batch, unit))
-    problem = JointProblem(model=model, layout=layout, objective=obj, lower=lm_lo[:D],
-                           upper=lm_hi[:D], lm_lower=lm_lo, lm_upper=lm_hi, full=full,
-                           view=view, levels=np.linspace(lo, hi, N_LEVELS))
-    if pso_params is None:
-        pso_params = PSOParams(window=25, min_generations=min(
-            MIN_GENERATIONS_DYNAMIC if model.dynamic else 0, int(max_generations)))
+    params = sw.params if sw.params is not None else PSOParams(window=25, min_generations=min(
+        MIN_GENERATIONS_DYNAMIC if model.dynamic else 0, sw.generation_cap))
+    problem = LawsProblem(model, layout, obj, lm_lo[:D], lm_hi[:D], lm_lo, lm_hi, full, view,
+                          np.linspace(lo, hi, N_LEVELS), pso_params=params)
     timings = {"prepare": time.perf_counter() - t0}
-    out = joint_fit(problem, key=jax.random.key(int(seed)) if key is None else key,
-                    n_particles=n_particles, max_generations=max_generations,
-                    pso_params=pso_params, restarts=restarts, polish=polish,
-                    polish_steps=polish_steps, tol=tol, uncertainty=uncertainty, info=info,
-                    timings=timings)
+    out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
+                     key=jax.random.key(int(seed)) if key is None else key)
+    info.update(out.info())
+    timings.update(out.outcome.timings)
     timings["total"] = time.perf_counter() - t0
     info.update(timings=timings, lag_fitted=mode == "fit", lag_mode=mode)
     return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, info,
-                 command_unit=unit, lag=None if mode == "none" else out.eta,
-                 uncertainty=law_uncertainty_of(model, layout, out))
+                            command_unit=unit, lag=None if mode == "none" else out.eta,
+                            uncertainty=law_uncertainty_of(model, layout, out))
 
 
 def _check_lag_bounds(lag_bounds) -> tuple[float, float]:

@@ -20,10 +20,9 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InputError
 from .._io import json_safe
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
-from ..data import Batch
-from ..fitting import as_batch
+from ..data import Batch, as_batch, check_mask
 from ..models import AbstractModel, get, resolve_model
-from ..objective import check_mask, masked_rms, nrmse
+from ..objective import masked_rms, nrmse
 from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
 
 #: Methods a :class:`GeneralizedModel` can come from: the paper's two-step generalization, the

@@ -16,14 +16,12 @@ from ._hysteretic import ModifiedBoucWen as ModifiedBoucWen
 from ._integrate import SCHEMES as SCHEMES
 from ._integrate import integrate as integrate
 from ._integrate import integrate_step as integrate_step
-from ._integrate import rk4_scan as rk4_scan
 from ._registry import get as get
 from ._registry import names as names
 from ._static import Bingham as Bingham
 from ._static import Kwok as Kwok
 from ._substeps import MAX_SUBSTEPS as MAX_SUBSTEPS
 from ._substeps import STEP_TARGET as STEP_TARGET
-from ._substeps import SWARM_MAX_SUBSTEPS as SWARM_MAX_SUBSTEPS
 from ._substeps import TRACED_SUBSTEPS as TRACED_SUBSTEPS
 from ._substeps import choose_substeps as choose_substeps
 from ._substeps import doubled_substeps as doubled_substeps

@@ -39,7 +39,6 @@ to `inf`.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -317,18 +316,3 @@ def integrate(
 
     _, ys = jax.lax.scan(interval, y0, xs)
     return jnp.concatenate([y0[None, :], ys], axis=0)
-
-
-def rk4_scan(
-    rhs: RHS,
-    y0: Float[ArrayLike, " S"],
-    theta: Float[ArrayLike, "*T P"],
-    x: Float[ArrayLike, " T"],
-    xdot: Float[ArrayLike, " T"],
-    dt: Float[ArrayLike, "*T"],
-    substeps: int,
-) -> Float[Array, "T S"]:
-    """Deprecated (one release): :func:`integrate` with `scheme="rk4"` (arguments as there)."""
-    warnings.warn("mrjax.models.rk4_scan is deprecated: use mrjax.models.integrate(..., "
-                  "scheme='rk4')", DeprecationWarning, stacklevel=2)
-    return integrate(rhs, y0, theta, x, xdot, dt, substeps, scheme="rk4")

@@ -41,11 +41,6 @@ TRACED_SUBSTEPS = 8
 #: than through the Newton iterates and as good for a Levenberg-Marquardt step or a std-error.
 IMPLICIT = "implicit"
 
-#: Deprecated (one release): the swarm now integrates with the L-stable scheme, one step per
-#: sample (see :func:`resolve_model`); passing this as `cap` selects that policy.
-SWARM_MAX_SUBSTEPS = 8
-
-
 def choose_substeps(rate_hz: float, dt_s: float, *, target: float = STEP_TARGET) -> int:
     """Number of integrator sub-steps per sample interval for a given stiffness.
 
@@ -71,7 +66,7 @@ def max_abs(a: ArrayLike) -> float:
 
 
 def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
-                  mask: ArrayLike | None = None, *, swarm: bool = False, cap: int | None = None):
+                  mask: ArrayLike | None = None, *, swarm: bool = False):
     """The model with its integration (scheme and sub-step count) fixed on the host.
 
     The policy:
@@ -106,14 +101,13 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
     - `mask`: which entries of `xdot`/`dt` are real samples (default all), e.g. `batch.mask`
         (a tuple with groups).
     - `swarm`: the swarm's policy (above).
-    - `cap`: deprecated (one release): a cap means a swarm.
 
     **Returns:** `model.with_substeps(m, scheme)`, with the L-stable scheme's `tangent`
     `IMPLICIT` (its values are the same; its Jacobian costs about a third).
     """
     if not model.dynamic or model.substeps is not None:
         return model
-    if swarm or cap is not None:
+    if swarm:
         return model.with_substeps(1, "sdirk", IMPLICIT)
     groups = isinstance(xdot, (tuple, list))
     xdots, dts = (tuple(xdot), tuple(dt)) if groups else ((xdot,), (dt,))

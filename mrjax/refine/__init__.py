@@ -42,8 +42,10 @@ from ._polish import BOUND_SNAP as BOUND_SNAP
 from ._polish import FULL_MAX_STEPS as FULL_MAX_STEPS
 from ._polish import FULL_TOL_FACTOR as FULL_TOL_FACTOR
 from ._polish import VIEW_TOL_FACTOR as VIEW_TOL_FACTOR
+from ._polish import BoxSolution as BoxSolution
 from ._polish import Polished as Polished
 from ._polish import polish as polish
+from ._polish import solve_box as solve_box
 from ._uncertainty import CORR_LIMIT as CORR_LIMIT
 from ._uncertainty import EIG_RTOL as EIG_RTOL
 from ._uncertainty import NULL_LOADING as NULL_LOADING

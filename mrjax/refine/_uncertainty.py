@@ -12,9 +12,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._errors import InputError
-from ..data import Batch
+from ..data import Batch, check_mask
 from ..models import AbstractModel, resolve_model
-from ..objective import check_mask, residuals
+from ..objective import residuals
 from ._args import as_free, as_theta, require_x64
 
 #: Relative eigenvalue cutoff of the column-scaled $J^T J$ (unit diagonal) below which a
@@ -188,7 +188,7 @@ def uncertainty_one(model, free_idx, theta, x, xdot, dt, force, mask):
 
 
 @eqx.filter_jit
-def _uncertainty_core(model, free_idx, theta, x, xdot, dt, force, mask):
+def uncertainty_core(model, free_idx, theta, x, xdot, dt, force, mask):
     one = lambda th, a, b, c, d, e: uncertainty_one(model, free_idx, th, a, b, c, d, e)
     return jax.vmap(one)(theta, x, xdot, dt, force, mask)
 
@@ -262,6 +262,6 @@ def uncertainty(
     free_idx = tuple(int(i) for i in np.flatnonzero(fr))
     if not free_idx:
         raise InputError("no free parameters")
-    out = _uncertainty_core(model, free_idx, jnp.asarray(theta), batch.x, batch.xdot, batch.dt,
+    out = uncertainty_core(model, free_idx, jnp.asarray(theta), batch.x, batch.xdot, batch.dt,
                             batch.force, jnp.asarray(m))
     return make_uncertainty(model, theta, out, fr)

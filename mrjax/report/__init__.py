@@ -12,6 +12,7 @@ png = rp.save_png_bytes(rp.plot_records(mrjax.data.load("tests/")))   # what was
 ```
 """
 
+from .._tables import format_table as format_table
 from ._command import command_figures as command_figures
 from ._command import plot_command_record as plot_command_record
 from ._command import plot_laws_vs_command as plot_laws_vs_command
@@ -23,6 +24,5 @@ from ._figures import plot_params_vs_current as plot_params_vs_current
 from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
 from ._figures import plot_rms_vs_current as plot_rms_vs_current
 from ._figures import save_png_bytes as save_png_bytes
-from ._tables import format_table as format_table
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records

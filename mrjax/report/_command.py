@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..fitting import as_batch
+from ..data import as_batch
 from ..generalize import GeneralizedModel, lag_current
 from ._figures import FITTED_COLOR, MEASURED_COLOR, labels_of, new_figure, rows_rms, save_png_bytes
 from ._timeseries import chosen_panels, zoom_span

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..report import format_table
+from .._tables import format_table
 from ._figures import FIGURES
 
 _POW = {0: "", 1: "·i", 2: "·i²"}

@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from ..data import Batch
+from ..data import Batch, fit_mask
 from ..fitting import FitResult, fit
 from ..generalize import generalize
 from ..models import AbstractModel, get, resolve_model
-from ..objective import fit_mask, nrmse, rms_per_condition
+from ..objective import nrmse, rms_per_condition
 from ..refine import polish
 from ._data import DATA_CYCLES, load_study_data
 from ._stats import finite_median

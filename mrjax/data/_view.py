@@ -23,8 +23,9 @@ import math
 
 import numpy as np
 
-from ..data import Batch, Condition, make_batch, velocity_window
-from ..objective import fit_mask
+from ._condition import Batch, Condition, make_batch
+from ._mask import fit_mask
+from ._velocity import velocity_window
 
 #: Samples per period kept for the swarm (periodic records: per excitation period). 64 was
 #: too coarse for the modified Bouc-Wen swarm on the 5 mm / 3 Hz / 0 A UTFSM test (every

@@ -1,0 +1,33 @@
+"""The identification engine: one pipeline for every problem kind.
+
+```python
+import mrjax
+res = mrjax.fit("kwok", data, swarm=mrjax.Swarm(restarts=2), polish=mrjax.Polish(tol=1e-7))
+```
+
+:func:`solve` runs view -> swarm -> view polish -> full-record polish -> uncertainty on an
+:class:`AbstractProblem`: per-test parameters (`mrjax.fit`), joint laws over the current
+(`mrjax.generalize.generalize(method="joint")`) and laws of a time-varying command
+(`mrjax.generalize.identify`) are kinds of it. The settings are objects: :class:`Swarm`
+and :class:`Polish` (`equinox.Module`s); :func:`settings` maps the keyword options of the
+public functions onto them (one place).
+"""
+
+from ._problem import AbstractProblem as AbstractProblem
+from ._problem import Outcome as Outcome
+from ._problem import StageOutcome as StageOutcome
+from ._problem import StageSpec as StageSpec
+from ._problem import Start as Start
+from ._problem import SwarmOutcome as SwarmOutcome
+from ._problem import SwarmSetup as SwarmSetup
+from ._problem import refined as refined
+from ._run import solve as solve
+from ._settings import METHODS as METHODS
+from ._settings import MODES as MODES
+from ._settings import Polish as Polish
+from ._settings import Swarm as Swarm
+from ._settings import settings as settings
+from ._swarm import best_restart as best_restart
+from ._swarm import progress_callback as progress_callback
+from ._swarm import run_swarm as run_swarm
+from ._swarm import swarm_result as swarm_result
