@@ -154,10 +154,15 @@ def resident_bytes(p: TestsProblem, run: Run) -> int:
     the whole batch (and the swarm's view of it) and the results of every condition."""
     arrays = jax.tree.leaves(p.source) + ([] if p.view is None else jax.tree.leaves(p.view.batch))
     data = sum(int(np.asarray(a).nbytes) for a in arrays if hasattr(a, "shape"))
-    P = p.model.n_params
+    return int(RUNTIME_BYTES + data + results_bytes(p.model.n_params, run, p.n_real))
+
+
+def results_bytes(n_params: int, run: Run, n_conditions: int) -> int:
+    """Memory of the results of `n_conditions` conditions [bytes]: parameters, errors,
+    intervals, correlations and the swarm's history of each."""
+    P = n_params
     G = run.swarm.generation_cap + 1 if run.swarm is not None else 0
-    results = p.n_real * 8 * (G + 4 * P + 2 * P * P + 16)
-    return int(RUNTIME_BYTES + data + results)
+    return int(n_conditions * 8 * (G + 4 * P + 2 * P * P + 16))
 
 
 @dataclasses.dataclass(frozen=True)
