@@ -67,3 +67,27 @@ def test_streamed_fit_checks_every_test_before_any_work(kwok_csv, tmp_path, monk
         mrjax.fit("kwok", Source.scan(tmp_path / "bad.csv", keep_bytes=0), chunk_size=1,
                   **dict(KWOK, method="pso"))
     assert not fitted
+
+
+def test_cli_streams_when_the_budget_cannot_hold_the_tests(kwok_csv, tmp_path, monkeypatch):
+    """`mrjax fit` with a budget that cannot hold the tests (here: a hold share of 0) reads
+    them chunk by chunk: the same fit.csv as when it holds them; loops of a sample."""
+    from helpers import check_pngs, one_error_line, run_cli
+
+    import mrjax.cli._common as common
+
+    _, path = kwok_csv
+    argv = ["fit", path, "--model", "kwok", "--method", "pso", "--generations", "3",
+            "--particles", "200", "--memory", "3GB", "--chunk-size", "1"]
+    code, out, err = run_cli(argv + ["--no-plots", "--out", tmp_path / "held"])
+    assert code == 0, err
+    monkeypatch.setattr(common, "HOLD_SHARE", 0.0)
+    code, out, err = run_cli(argv + ["--out", tmp_path / "streamed"])
+    assert code == 0, err
+    assert "read from the files chunk by chunk" in err
+    held, streamed = (tmp_path / d / "fit.csv" for d in ("held", "streamed"))
+    assert streamed.read_bytes() == held.read_bytes()
+    check_pngs(tmp_path / "streamed", ["loops.png", "rms_vs_current.png"])
+    code, out, err = run_cli(argv + ["--generalize", "two-step", "--out", tmp_path / "g"])
+    assert code == 2 and "--generalize needs every test in memory" in one_error_line(err)
+    assert not (tmp_path / "g").exists()

@@ -67,16 +67,14 @@ from ..models import AbstractModel, get
 from ..parallel import pad_conditions, resolve_devices, take_conditions
 from ._journal import Journal, fingerprint
 from ._plan import (
-    DEFAULT_MEMORY_FRACTION,
     MIN_CHUNK_ELEMENTS,
     MIN_ROWS,
     RUNTIME_BYTES,
     VECTOR_BYTES,
     ChunkPlan,
-    available_memory,
     condition_bytes,
     condition_keys,
-    current_rss,
+    default_budget,
     parse_memory,
     plan_chunks,
     resident_bytes,
@@ -126,8 +124,8 @@ def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
                  devices=n_dev, lanes=lanes, minimum=minimum)
     C = whole.n_real if n_conditions is None else n_conditions
     if budget is None and chunk_size is None:
-        default = current_rss() + int(DEFAULT_MEMORY_FRACTION * available_memory())
-        return plan_chunks(C, budget=max(default, shape["resident"]), strict=False, **shape)
+        return plan_chunks(C, budget=max(default_budget(), shape["resident"]), strict=False,
+                           **shape)
     return plan_chunks(C, budget=budget, size=chunk_size, **shape)
 
 

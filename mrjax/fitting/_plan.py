@@ -124,6 +124,12 @@ def current_rss() -> int:
         return 0
 
 
+def default_budget() -> int:
+    """The memory budget of a fit given none [bytes]: what the process holds now plus
+    `DEFAULT_MEMORY_FRACTION` of the memory available (see :func:`available_memory`)."""
+    return current_rss() + int(DEFAULT_MEMORY_FRACTION * available_memory())
+
+
 def condition_bytes(p: TestsProblem, run: Run) -> int:
     """Estimated working set of one condition of a chunk [bytes]:
 
