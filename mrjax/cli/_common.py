@@ -318,7 +318,7 @@ def say_estimates(batch: Batch | np.ndarray) -> None:
     parts = [f"{what} of {int(est[:, j].sum())}"
              for j, what in enumerate(("velocity", "frequency", "amplitude")) if est[:, j].any()]
     if parts:
-        C = batch.n_conditions
+        C = est.shape[0]
         say(f"estimated, not read ('estimated' in the JSON output): {', '.join(parts)} of the "
             f"{C} test{'s' if C != 1 else ''}")
 
