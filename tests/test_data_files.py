@@ -297,3 +297,16 @@ def test_source_checks_cells_while_scanning(tmp_path):
     (tmp_path / "bad.csv").write_text("\n".join(text))
     raises_one_line(lambda: md.Source.scan(tmp_path / "bad.csv", keep_bytes=0), "line 201",
                     "'current_A'", "not a number")
+
+
+def test_si_units_skip_the_registry_and_agree_with_it():
+    """The SI unit of each quantity is checked without pint's registry (fast, for a fleet in
+    SI); pint gives it the factor 1 and the right dimension too."""
+    from mrjax.data import _units
+
+    for quantity, units in _units._SI.items():
+        for unit in units:
+            _, factor, dim = _units._parse(unit)
+            assert factor == 1.0 and _units._dimension_ok(dim, quantity), (quantity, unit)
+            assert md.check_unit(unit, quantity, what="x") == 1.0
+    raises_one_line(lambda: md.check_unit("m", "force", what="force"), "'m' is not a force")

@@ -69,11 +69,12 @@ def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float
         return None
     t = t - t[0]
     moved = np.concatenate([[0.0], np.cumsum(0.5 * (xdot[1:] + xdot[:-1]) * np.diff(t))])
-    basis = np.column_stack([np.ones_like(t), t / t[-1]])
-    q, _ = np.linalg.qr(basis)
+    tc = t - t.mean()
+    tt = float(np.dot(tc, tc))
 
-    def residual(a: np.ndarray) -> np.ndarray:
-        return a - q @ (q.T @ a)
+    def residual(a: np.ndarray) -> np.ndarray:  # a less its offset and linear drift
+        a = a - a.mean()
+        return a - tc * (float(np.dot(tc, a)) / tt)
 
     x, m = residual(x), residual(moved)
     xx, mm = float(np.dot(x, x)), float(np.dot(m, m))

@@ -26,7 +26,7 @@ from ._columns import Column, Meta
 from ._condition import Condition
 from ._csv import column_index, conventional_columns
 from ._files import PathLike, check_file, stem
-from ._pieces import join_codes, join_floats, view
+from ._pieces import join_codes, join_floats_lazily, view
 from ._progress import advance
 
 #: File extensions read as Parquet and as Feather (Arrow IPC).
@@ -127,7 +127,7 @@ class ColumnarFile:
     def table(self, parts: list[dict[Column, Any]], *, whole: bool = True) -> ReadColumns:
         """The pieces read as one table; `whole`: all of them (the notes are then those of
         the file)."""
-        values = {c: join_floats([p[c] for p in parts]) if c.unit is not None
+        values = {c: join_floats_lazily([p[c] for p in parts]) if c.unit is not None
                   else join_codes([p[c] for p in parts]) for c in self.index}
         n = sum(len(next(iter(p.values()))) for p in parts) if parts else 0
         notes = []

@@ -29,7 +29,7 @@ from ._build import Codes, LineMap, ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, stem
-from ._pieces import join_codes, join_floats, view
+from ._pieces import join_codes, join_floats_lazily, view
 from ._progress import advance
 from ._units import COLUMN_QUANTITIES, UNITS, parse_column
 
@@ -432,7 +432,7 @@ def _join(parts: list[Part], lay: _Layout) -> tuple[int, dict[Column, np.ndarray
     values: dict[Column, np.ndarray | Codes] = {}
     for c in lay.index:
         pieces = [p.values.pop(c) for p in parts]
-        values[c] = join_floats(pieces) if c.unit is not None else join_codes(pieces)
+        values[c] = join_floats_lazily(pieces) if c.unit is not None else join_codes(pieces)
     starts = np.cumsum([0] + [p.n for p in parts])
     lines = LineMap.join([(int(r0), p.lines) for r0, p in zip(starts, parts)])
     blank = sum(p.blank for p in parts)
