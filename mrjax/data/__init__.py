@@ -1,5 +1,7 @@
 """Test-condition data: conditions, padded batches and their masks, the swarm's views of
-records, data specs, loaders, units, velocity, sanity checks, reports and the synthetic grid."""
+records, data specs, loaders (long CSV, UTFSM text, MATLAB, Parquet, Feather), a source of tests
+left in their files and read a chunk at a time, units, velocity, sanity checks, reports and the
+synthetic grid."""
 
 from ._checks import check_condition as check_condition
 from ._coerce import as_batch as as_batch
