@@ -25,7 +25,8 @@ import json, sys, time
 t0 = time.perf_counter()
 import mrjax
 from mrjax.cli import enable_compilation_cache
-from mrjax.fitting import as_batch, save
+from mrjax.data import as_batch
+from mrjax.fitting import save
 enable_compilation_cache()  # as the `mrjax` command does ($MRJAX_CACHE_DIR; off: none)
 t1 = time.perf_counter()
 batch = as_batch(sys.argv[1])

@@ -123,8 +123,8 @@ def nrmse(
 def rms_per_condition(model: AbstractModel, theta: ArrayLike, batch: Batch, mask=None) -> np.ndarray:
     """Host helper: RMS [N] of parameters `theta` (C, P) on every condition of `batch`."""
     m = batch.mask if mask is None else mask
-    return np.asarray(_rms_batch(model, jnp.asarray(theta), batch.x, batch.xdot, batch.dt,
-                                 batch.force, jnp.asarray(m)))
+    return np.asarray(_rms_batch(model, jax.device_put(np.asarray(theta, float)), batch.x,
+                                 batch.xdot, batch.dt, batch.force, m))
 
 
 @eqx.filter_jit

@@ -133,8 +133,8 @@ def take_conditions(batch: Batch, index: Any, mask: Any = None, *,
     names = tuple(batch.labels[int(i)] for i in idx) if labels is None else tuple(labels)
     if len(names) != idx.size:
         raise InputError(f"take_conditions: {len(names)} labels for {idx.size} conditions")
-    taken = Batch(**{k: jax.numpy.asarray(v) for k, v in arrays.items()}, labels=names)
-    return taken, jax.numpy.asarray(np.asarray(mask)[idx])
+    taken = Batch(**jax.device_put(arrays), labels=names)
+    return taken, jax.device_put(np.asarray(mask)[idx])
 
 
 def shard_batch(batch: Batch, mask: Any = None, devices: Devices = "all") -> tuple[Batch, Any]:

@@ -64,16 +64,24 @@ from .models import check_box
 # ------------------------------------------------------------------------------ hyperparameters
 
 
+def _as(v, dtype):
+    """A hyperparameter as an array of `dtype`: host values stay host arrays (no compilation),
+    JAX arrays (e.g. traced under `vmap`) stay JAX arrays."""
+    if isinstance(v, jax.Array):
+        return v.astype(dtype) if v.dtype != dtype else v
+    return np.asarray(v, dtype=dtype)
+
+
 def _f(v):
-    return jnp.asarray(v, dtype=float)
+    return _as(v, jax.dtypes.canonicalize_dtype(float))  # the default float (float64 under mrjax)
 
 
 def _i(v):
-    return jnp.asarray(v, dtype=jnp.int32)
+    return _as(v, np.int32)
 
 
 def _b(v):
-    return jnp.asarray(v, dtype=bool)
+    return _as(v, np.bool_)
 
 
 class PSOParams(eqx.Module):
@@ -221,6 +229,8 @@ class SwarmResult(eqx.Module):
 
 
 def _keys_for(key, n: int):
+    if isinstance(key, np.ndarray) and key.dtype == np.uint32 and key.ndim == 2:
+        return jax.device_put(key)  # raw key data, one row per condition (no compilation)
     key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         return jax.random.split(key, n) if key.ndim == 0 else key
@@ -515,11 +525,11 @@ def swarm(
     if not leaves:
         raise InputError("swarm data is empty")
     C = int(leaves[0].shape[0])
-    lower = jnp.asarray(lower, dtype=float)
-    upper = jnp.asarray(upper, dtype=float)
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
     D = lower.shape[-1]
-    lower = jnp.broadcast_to(lower, (C, D))
-    upper = jnp.broadcast_to(upper, (C, D))
+    lower = np.broadcast_to(lower, (C, D))
+    upper = np.broadcast_to(upper, (C, D))
     check_box(lower, upper, what="swarm bounds")
     if n_particles < 1 or max_generations < 1:
         raise InputError("n_particles and max_generations must be at least 1")
@@ -536,6 +546,7 @@ def swarm(
             raise InputError(f"swarm dtype must be a floating-point type, got {dtype}")
         objective, data = cast_floats((objective, data), dtype)
         lower, upper = lower.astype(dtype), upper.astype(dtype)
+    lower, upper = jax.device_put((np.ascontiguousarray(lower), np.ascontiguousarray(upper)))
     return _swarm(objective, lower, upper, data, keys, params, int(n_particles),
                   int(max_generations), callback,
                   None if page_size is None or page_size >= C else int(page_size))

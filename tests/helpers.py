@@ -27,6 +27,24 @@ ODE_MODELS: tuple[str, ...] = ("bouc_wen", "modified_bouc_wen", "dahl")
 #: The memoryless models.
 STATIC_MODELS: tuple[str, ...] = ("bingham", "kwok")
 
+#: The engine's settings of the test matrix (`tests/test_engine.py`): name -> keyword arguments
+#: of `mrjax.fit` (settings objects, the optimistix way). The default (separable, one swarm) is
+#: fitted for every model in `tests/test_fit.py`, chunking in `tests/test_chunks.py`, devices
+#: in `tests/test_parallel.py`. The paper's full swarm is not a known-answer setting on short
+#: records: on the first `SHORT_MOTIONS` record of the tanh model it ends in a local optimum
+#: at 5 x the noise floor for seeds 0 and 1 (also with 3 restarts at seed 1), where the
+#: separable swarm finds the optimum at every seed; it is tested on the paper grid.
+ENGINE_SETTINGS: dict[str, dict] = {
+    "restarts": dict(swarm=mrjax.Swarm(restarts=2)),
+    "float32": dict(swarm=mrjax.Swarm(dtype="float32")),
+}
+#: `mrjax.fit`'s methods: swarm then polish, swarm alone, polish alone from a neutral start.
+METHODS: tuple[str, ...] = ("pso+lm", "pso", "lm")
+#: The engine's problem kinds and the public function that builds each.
+PROBLEM_KINDS: dict[str, str] = {"TestsProblem": "mrjax.fit",
+                                 "LawsProblem": "mrjax.generalize.generalize(method='joint'), "
+                                                "mrjax.generalize.identify"}
+
 
 def named(name: str, **values: float) -> np.ndarray:
     """Parameter vector of model `name` from keyword values (all parameters required)."""

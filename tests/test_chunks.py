@@ -15,8 +15,8 @@ import pytest
 import mrjax
 from mrjax.cli import main
 from mrjax.data import make_batch, paper_grid
+from mrjax.engine import row_keys as condition_keys
 from mrjax.fitting import FitResult, parse_memory, plan_chunks
-from mrjax.fitting._plan import condition_keys
 
 FIELDS = ("labels", "current", "frequency", "amplitude", "n_samples", "theta", "rms", "nrmse",
           "pso_rms", "generations", "stopped_by_criterion", "history", "polish_steps",

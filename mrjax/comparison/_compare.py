@@ -19,12 +19,14 @@ from ._folds import Plan, plan_validation
 from ._result import CompareResult
 
 #: Options of `mrjax.fit` that `compare` passes on (the same for every model).
-FIT_OPTIONS = ("method", "swarm_mode", "transient", "n_particles", "max_generations",
-               "generations", "pso_params", "polish_steps", "uncertainty", "progress", "devices",
-               "swarm_dtype", "restarts", "max_memory", "chunk_size")
+FIT_OPTIONS = ("method", "swarm", "polish", "swarm_mode", "transient", "n_particles",
+               "max_generations", "generations", "pso_params", "polish_steps", "polish_tol",
+               "uncertainty", "progress", "devices", "swarm_dtype", "swarm_view", "restarts",
+               "max_memory", "chunk_size")
 #: Options of `mrjax.generalize.generalize` that `compare` passes on.
-GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "n_particles", "max_generations",
-                      "pso_params", "polish", "polish_steps")
+GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "swarm", "polish", "n_particles",
+                      "max_generations", "pso_params", "restarts", "polish_steps", "tol",
+                      "swarm_view", "uncertainty")
 GENERALIZE_METHODS = ("two-step", "joint")
 
 

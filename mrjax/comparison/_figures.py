@@ -1,20 +1,23 @@
 """The four figures of a comparison, as `matplotlib.figure.Figure` objects without pyplot.
 
-Reached through `CompareResult.figures()`; render one with `mrjax.report.save_png_bytes`.
+Reached through `CompareResult.figures()` (which imports this module only when figures are
+drawn, so that a comparison never loads matplotlib otherwise); render one with
+`mrjax.report.save_png_bytes`. The functions take the `CompareResult` they are given and read
+its public fields; this module imports nothing of the comparison (no import circle).
 """
 
 from __future__ import annotations
 
 import math
 import textwrap
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-if TYPE_CHECKING:
-    from ._result import CompareResult
+#: A `mrjax.CompareResult` (duck-typed: its public fields are read).
+CompareResult = Any
 
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
 _MEASURED = "0.45"

@@ -17,6 +17,7 @@ import math
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -318,7 +319,7 @@ def make_batch(
                     out[i, k:] = a[-1]
             else:
                 out[i, :k] = getattr(c, name)
-        return jnp.asarray(out, dtype=fdt)
+        return jax.device_put(out.astype(fdt, copy=False))
 
     arrays = {k: stacked(k) for k in ("t", "x", "xdot", "force", "dt", "command")}
     mask = np.arange(T)[None, :] < n[:, None]
@@ -328,15 +329,11 @@ def make_batch(
                             for c in conditions], dtype=bool).reshape(C, len(ESTIMATED_FIELDS))
 
     def meta(name):
-        return jnp.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
+        return np.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
 
-    return Batch(
-        **arrays,
-        mask=jnp.asarray(mask),
-        current=meta("current"),
-        frequency=meta("frequency"),
-        amplitude=meta("amplitude"),
-        command_kind=jnp.asarray(kind),
-        estimated=jnp.asarray(estimated),
-        labels=tuple(c.label for c in conditions),
-    )
+    # host arrays moved to the device as they are (`device_put` transfers; `jnp.asarray` of a
+    # host array would compile a program per shape)
+    return Batch(**arrays, **jax.device_put(dict(
+        mask=np.asarray(mask), current=meta("current"), frequency=meta("frequency"),
+        amplitude=meta("amplitude"), command_kind=np.asarray(kind),
+        estimated=np.asarray(estimated))), labels=tuple(c.label for c in conditions))

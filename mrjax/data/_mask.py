@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool
 
@@ -55,4 +55,4 @@ def fit_mask(batch: Batch, transient: float | str | None = None) -> Bool[Array, 
             f"condition {batch.labels[short[0]]!r}: fewer than 3 samples remain after dropping "
             f"the transient ({transient!r})"
         )
-    return jnp.asarray(keep)
+    return jax.device_put(keep)

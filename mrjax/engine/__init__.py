@@ -29,5 +29,6 @@ from ._settings import Swarm as Swarm
 from ._settings import settings as settings
 from ._swarm import best_restart as best_restart
 from ._swarm import progress_callback as progress_callback
+from ._swarm import row_keys as row_keys
 from ._swarm import run_swarm as run_swarm
 from ._swarm import swarm_result as swarm_result

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -11,10 +12,39 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..pso import swarm as run_pso
+from .. import pso
+from .._errors import InputError
 from ._problem import AbstractProblem, SwarmOutcome, SwarmSetup
 from ._settings import Swarm
 
+
+@functools.partial(jax.jit, static_argnums=1)
+def _split(key, n: int):
+    return jax.random.key_data(jax.random.split(key, n))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _split_seed(seed, n: int):
+    return jax.random.key_data(jax.random.split(jax.random.key(seed), n))
+
+
+def row_keys(key: Any, n: int) -> np.ndarray:
+    """`n` per-row keys as raw key data (n, 2) uint32 on the host: `jax.random.split(key, n)` of
+    one key (an int seed, a typed key or a raw (2,) uint32 key), or `key` itself when it
+    already holds `n` keys. Row i's key does not depend on `n` (JAX's partitionable threefry,
+    the default), so a fit's streams are those the whole batch gives its rows, whatever the
+    chunking; raw keys draw what the typed keys draw. One compiled program."""
+    if isinstance(key, (int, np.integer)):
+        return np.asarray(_split_seed(int(key), n))
+    typed = isinstance(key, jax.Array) and jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+    single = np.ndim(key) == (0 if typed else 1)
+    if single:
+        return np.asarray(_split(key if typed else np.asarray(key, np.uint32), n))
+    data = np.asarray(jax.random.key_data(key) if typed else key)
+    if data.shape[0] != n:
+        raise InputError(f"key: got {data.shape[0]} keys for {n} swarm rows (conditions x "
+                         f"restarts); pass one key or one per row")
+    return data
 
 def progress_callback(enabled: bool | None, max_generations: int, desc: str = "swarm"):
     """A tqdm bar driven from inside the compiled swarm, or `(None, None)` (costs nothing).
@@ -72,7 +102,7 @@ def swarm_result(setup: SwarmSetup, settings: Swarm, key: Any, *,
     params = settings.params if settings.params is not None else setup.params
     if settings.generations is not None:
         params = eqx.tree_at(lambda p: p.criterion, params, jnp.asarray(False))
-    return run_pso(setup.objective, setup.lower, setup.upper, setup.data, key=key,
+    return pso.swarm(setup.objective, setup.lower, setup.upper, setup.data, key=key,
                    params=params, n_particles=settings.n_particles,
                    max_generations=settings.generation_cap, callback=callback,
                    dtype=settings.dtype, page_size=setup.page_size)

@@ -57,12 +57,11 @@ import sys
 import time
 from typing import Any
 
-import jax
 import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, Source, as_batch
-from ..engine import Polish, Swarm
+from ..engine import Polish, Swarm, row_keys
 from ..models import AbstractModel, get
 from ..parallel import pad_conditions, resolve_devices, take_conditions
 from ._journal import Journal, fingerprint
@@ -73,7 +72,6 @@ from ._plan import (
     VECTOR_BYTES,
     ChunkPlan,
     condition_bytes,
-    condition_keys,
     default_budget,
     parse_memory,
     plan_chunks,
@@ -166,14 +164,13 @@ def fit_in_chunks(
         raise InputError("resume needs a journal directory (journal=...)")
     k = run.swarm.restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
-    key = run.key
-    if key is None:  # from the seed, split once for the whole batch
-        key = jax.random.key(int(run.seed))
+    # one stream per swarm row, split once for the whole batch (from the seed without a key)
+    key = int(run.seed) if run.key is None else run.key
     if isinstance(data, Source) and not data.kept:
         whole, plan, view_length, take, digest = _streamed(model, data, run, n_dev, max_memory,
                                                            chunk_size)
         C = data.n_conditions
-        keys = condition_keys(key, k * C)
+        keys = row_keys(key, k * C)
     else:
         if isinstance(data, Source):
             data = data.batch()
@@ -181,7 +178,7 @@ def fit_in_chunks(
         # conditions)
         whole = problem_of(model, data, dataclasses.replace(run, devices=None))
         C, digest = whole.n_real, ""
-        keys = condition_keys(key, k * C)
+        keys = row_keys(key, k * C)
         plan = _plan(whole, run, n_dev, max_memory, chunk_size)
         view_length = whole.view.batch.length if whole.view is not None else None
 
@@ -196,7 +193,7 @@ def fit_in_chunks(
             raise InputError(f"cannot resume: the journal's chunks of {plan.size} conditions "
                              f"do not divide over {n_dev} devices")
     done = jr.finished(whole.model) if jr is not None else {}
-    rows_keys = keys.reshape(k, C)
+    rows_keys = keys.reshape(k, C, 2)
     parts: list[FitResult] = []
     bar = _bar(run.progress, plan)
     try:
@@ -210,7 +207,8 @@ def fit_in_chunks(
             rows = np.arange(start, stop)
             chunk, _, n = pad_conditions(take(rows), None, plan.size)
             padded = np.concatenate([rows, np.full(plan.size - n, rows[-1])])
-            chunk_run = dataclasses.replace(run, key=rows_keys[:, padded].reshape(-1))
+            chunk_keys = rows_keys[:, padded].reshape(k * plan.size, 2)
+            chunk_run = dataclasses.replace(run, key=chunk_keys)
             res = fit_chunk(whole.model, chunk, chunk_run, view_length=view_length,
                             checked=True)
             res = res.subset(np.arange(n)) if res.n_conditions != n else res

@@ -8,7 +8,6 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
@@ -260,16 +259,3 @@ def plan_chunks(
                      int(resident))
 
 
-def condition_keys(key: Any, n: int) -> jax.Array:
-    """`n` per-row keys: `jax.random.split(key, n)` of one key (a typed key or a raw (2,)
-    uint32 key), or `key` itself when it already holds `n` keys. Row i's key does not depend
-    on `n` (JAX's partitionable threefry, the default), so a fit's streams are those the whole
-    batch gives its rows, whatever the chunking."""
-    key = key if isinstance(key, jax.Array) else jax.numpy.asarray(key)
-    single = key.ndim == (0 if jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key) else 1)
-    if single:
-        return jax.random.split(key, n)
-    if key.shape[0] != n:
-        raise InputError(f"key: got {key.shape[0]} keys for {n} swarm rows (conditions x "
-                         f"restarts); pass one key or one per row")
-    return key

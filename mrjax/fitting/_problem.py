@@ -82,18 +82,18 @@ def swarm_objective(model: AbstractModel, mode: str, lo: np.ndarray, hi: np.ndar
     """The swarm's fitness of `model` in `mode` (`"separable"`: variable projection over the
     nonlinear parameters, log-searched where `mrjax.objective.log_search_flags` says; `"full"`:
     the paper's, every parameter) and its search box `(lower, upper)` (D,)."""
-    lo_j, hi_j = jnp.asarray(lo), jnp.asarray(hi)
+    lo_j, hi_j = jax.device_put((np.asarray(lo, float), np.asarray(hi, float)))
     if mode == "full":
         return FullObjective(model), lo_j, hi_j
     if mode != "separable":
         raise InputError(f"swarm mode must be 'separable' or 'full', got {mode!r}")
     nl = model.nonlinear_index
     if nl.size == 0:  # fully linear model: one exact solve, no swarm needed; 1 dummy dimension
-        return LinearObjective(model, lo_j, hi_j), jnp.zeros((1,)), jnp.zeros((1,))
+        return LinearObjective(model, lo_j, hi_j), np.zeros(1), np.zeros(1)
     logs = log_search_flags(model, lo)[nl]
     obj = SeparableObjective(model, lo_j, hi_j, tuple(bool(v) for v in logs))
-    s_lo = jnp.asarray(np.where(logs, np.log(np.where(logs, lo[nl], 1.0)), lo[nl]))
-    s_hi = jnp.asarray(np.where(logs, np.log(np.where(logs, hi[nl], 1.0)), hi[nl]))
+    s_lo = np.where(logs, np.log(np.where(logs, lo[nl], 1.0)), lo[nl])
+    s_hi = np.where(logs, np.log(np.where(logs, hi[nl], 1.0)), hi[nl])
     return obj, s_lo, s_hi
 
 
@@ -184,7 +184,7 @@ class TestsProblem(AbstractProblem):
         if not free:
             raise InputError("no free parameters: every parameter is fixed (lower == upper)")
         return StageSpec(residual=ConditionResidual(model),
-                         args=(batch.x, batch.xdot, batch.dt, batch.force, jnp.asarray(m)),
+                         args=(batch.x, batch.xdot, batch.dt, batch.force, jax.device_put(m)),
                          n=m.sum(axis=1), lower=self.lower, upper=self.upper, free=free,
                          jacobian="forward", snap=True, page_size=page,
                          integration=(model.substeps, model.scheme))
@@ -246,9 +246,10 @@ def swarm_params(setup: SwarmSetup, position, fitness):
     parameter vectors (the linear ones solved, in separable mode) and their fitness; a
     low-precision swarm's positions re-scored in the default float."""
     obj, data = setup.objective, setup.data
-    if setup.dtype is None or jnp.dtype(setup.dtype) == setup.lower.dtype:
+    dtype = np.asarray(setup.lower).dtype
+    if setup.dtype is None or jnp.dtype(setup.dtype) == dtype:
         return _to_params(obj, position, data), fitness
-    return _to_params_rms(obj, position.astype(setup.lower.dtype), data)
+    return _to_params_rms(obj, position.astype(dtype), data)
 
 
 class ModelSwarm(eqx.Module):

@@ -69,7 +69,7 @@ class Layout:
         return np.linalg.inv(self.V)
 
     def lawset(self, coef) -> LawSet:
-        return LawSet(jnp.asarray(coef, float), self.kinds, self.sizes)
+        return LawSet(np.asarray(coef, float), self.kinds, self.sizes)
 
 
 # ------------------------------------------------------------------------------ coding
@@ -231,7 +231,9 @@ class JointObjective(AbstractObjective):
                                   cols(self.ls_cols[self.n_basis:]), b, rows.force, rows.mask)
         return jax.tree.map(lambda a: jnp.sum(a, axis=0), gr)
 
-    def _solve(self, position, data):
+    def solve(self, position, data):
+        """`(nu, eta, total RMS [N])` of a swarm position: its node values with the linear
+        laws' solved by least squares, the lag rate, and the RMS over every record."""
         nu, eta = self.coding.from_position(position)
         laws = self.coding.lawset(nu)
         gr = None
@@ -247,17 +249,42 @@ class JointObjective(AbstractObjective):
         return nu, eta, rms
 
     def __call__(self, position, data):
-        return self._solve(position, data)[2]
+        return self.solve(position, data)[2]
 
     def to_params(self, position, data):
-        nu, eta, _ = self._solve(position, data)
+        nu, eta, _ = self.solve(position, data)
         return jnp.concatenate([nu, jnp.reshape(eta, (1,))])
+
+
+@eqx.filter_jit
+def law_values(laws: LawSet, u) -> Array:
+    """The parameters (..., P) of `laws` at commands `u` (jitted: compiled once per law
+    layout and shape)."""
+    return laws(u)
+
+
+@eqx.filter_jit
+def coded_law_values(coding: Coding, nu, u) -> Array:
+    """The parameters (..., P) at commands `u` of the laws of node values `nu` (jitted)."""
+    return coding.lawset(nu)(u)
+
+
+@eqx.filter_jit
+def from_bounded(coding: Coding, z) -> tuple[Array, Array]:
+    """`(nu, eta)` of the polish's variables `z` (jitted :meth:`Coding.from_bounded`)."""
+    return coding.from_bounded(z)
+
+
+@eqx.filter_jit
+def coefficients_of(coding: Coding, nu) -> Array:
+    """Law coefficients (V,) of node values `nu`, derived entries completed (jitted)."""
+    return coding.coefficients(coding.complete(nu))
 
 
 @eqx.filter_jit
 def objective_at(obj: JointObjective, position, data):
     """`(nu, eta, total RMS [N])` of one swarm position (jitted)."""
-    return obj._solve(position, data)
+    return obj.solve(position, data)
 
 
 def joint_residuals(model: AbstractModel, coding: Coding, nu, eta, data: tuple[Rows, ...]):
@@ -335,10 +362,11 @@ def build_objective(
     exp_lin = tuple((lin.index(names[p]), p) for p, n in enumerate(names)
                     if n in lin and kinds[p] == "exp")
     free = tuple(int(k) for k in range(layout.n) if not derived or k != derived[0])
-    coding = Coding(jnp.asarray(nu0, float), jnp.asarray(layout.Vinv), jnp.asarray(eta0, float),
+    coding = Coding(*jax.device_put((np.asarray(nu0, float), np.asarray(layout.Vinv),
+                                     np.asarray(eta0, float))),
                     kinds, layout.sizes, tuple(direct), tuple(direct_log), pair_idx, derived,
                     free, lag, ls_idx)
-    return JointObjective(model, coding, jnp.asarray(V_ls), ls_idx,
+    return JointObjective(model, coding, jax.device_put(np.asarray(V_ls, float)), ls_idx,
                           tuple((e[0], e[1]) for e in ls),
                           sum(e[0] < n_fixed for e in ls), exp_lin)
 

@@ -7,8 +7,6 @@ import time
 from collections.abc import Mapping
 from typing import Any, Literal
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -19,7 +17,7 @@ from ..engine import Polish, Swarm, settings
 from ..fitting import FitResult
 from ..models import AbstractModel, resolve_model
 from ..pso import PSOParams
-from ._coding import Layout, bounded_box, build_objective, total_rms_of
+from ._coding import Layout, bounded_box, build_objective, law_values, total_rms_of
 from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
 from ._model import GeneralizedModel, LawUncertainty
@@ -104,7 +102,7 @@ def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
                     tuple(nodes(lo_i, hi_i, d + 1) for d in degs))
     rows = packed_rows(batch, m, cur) if not model.dynamic else make_rows(batch, m, cur)
     rms = _score(model, layout, coef, rows, np.concatenate(
-        [theta, np.asarray(layout.lawset(coef)(jnp.asarray(levels)))]))
+        [theta, np.asarray(law_values(layout.lawset(coef), levels))]))
     start = TwoStep(theta=theta, current=cur, levels=levels, layout=layout, coef=coef, rms=rms,
                     rows=rows, exp_cols=exp_cols)
     return start, used, support, {"two_step_total_rms_N": rms, "weighting_note": note}
@@ -127,7 +125,7 @@ def _search_box(model: AbstractModel, start: TwoStep):
     non-negative. Returns `(nu0, half, box_lo, box_hi)`, each (V,)."""
     layout, kinds = start.layout, start.layout.kinds
     nu0 = layout.V @ start.coef
-    law_rows = np.asarray(layout.lawset(start.coef)(jnp.asarray(start.current)))
+    law_rows = np.asarray(law_values(layout.lawset(start.coef), start.current))
     dev = np.sqrt(np.mean((fit_space(start.theta, start.exp_cols)
                            - fit_space(law_rows, start.exp_cols)) ** 2, axis=0))
     lo_m, hi_m = model.bounds
@@ -261,7 +259,7 @@ def generalize(
     use_view = model.dynamic if sw.view is None else bool(sw.view)
     problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view, sw.params)
     out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
-                     key=jax.random.key(int(seed)) if key is None else key)
+                     key=int(seed) if key is None else key)
     info.update(out.info())
     timings.update(out.outcome.timings)
     if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)

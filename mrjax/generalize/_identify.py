@@ -9,7 +9,6 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
-import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -230,7 +229,7 @@ def identify(
                           np.linspace(lo, hi, N_LEVELS), pso_params=params)
     timings = {"prepare": time.perf_counter() - t0}
     out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
-                     key=jax.random.key(int(seed)) if key is None else key)
+                     key=int(seed) if key is None else key)
     info.update(out.info())
     timings.update(out.outcome.timings)
     timings["total"] = time.perf_counter() - t0

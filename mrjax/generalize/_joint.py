@@ -66,7 +66,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..engine import AbstractProblem, Outcome, Polish, StageSpec, Start, Swarm, SwarmSetup, solve
+from ..engine import (
+    AbstractProblem,
+    Outcome,
+    Polish,
+    StageSpec,
+    Start,
+    Swarm,
+    SwarmSetup,
+    row_keys,
+    solve,
+)
 from ..models import AbstractModel, resolve_model
 from ..pso import PSOParams, default_params
 from ..refine import VIEW_TOL_FACTOR, jacobian_uncertainty
@@ -74,6 +84,9 @@ from ._coding import (
     Coding,
     JointObjective,
     Layout,
+    coded_law_values,
+    coefficients_of,
+    from_bounded,
     joint_residuals,
     n_scored,
     objective_at,
@@ -100,7 +113,7 @@ class LawResidual(eqx.Module):
 @eqx.filter_jit
 def _positions(obj: JointObjective, position, data):
     """`(nu, eta, RMS [N])` of every swarm row's best position (R, D) on its data."""
-    return jax.vmap(obj._solve)(position, data)
+    return jax.vmap(obj.solve)(position, data)
 
 
 @eqx.filter_jit
@@ -190,7 +203,7 @@ class LawsProblem(AbstractProblem):
 
     def laws_of(self, z) -> tuple[np.ndarray, float]:
         """`(nu (V,), eta)` of the polish's variables `z` (K,) (host)."""
-        nu, eta = self.coding.from_bounded(jnp.asarray(z))
+        nu, eta = from_bounded(self.coding, np.asarray(z, float))
         return np.asarray(nu), float(eta)
 
     def swarm_model(self) -> AbstractModel:
@@ -211,7 +224,7 @@ class LawsProblem(AbstractProblem):
         key = (nu.astype(np.float32).tobytes(), np.float32(eta), id(data))
         if key in self._policy:
             return self._policy[key]
-        rows = np.asarray(self.coding.lawset(jnp.asarray(nu))(jnp.asarray(self.levels)))
+        rows = np.asarray(coded_law_values(self.coding, nu, self.levels))
         xdot = tuple(np.asarray(r.xdot) for r in data)
         dt = tuple(np.asarray(r.dt) for r in data)
         mask = tuple(np.asarray(r.mask, bool) for r in data)
@@ -241,7 +254,8 @@ class LawsProblem(AbstractProblem):
     def swarm_setup(self, swarm: Swarm) -> SwarmSetup:
         data = self.view if self.view is not None else self.full
         K = swarm.restarts
-        rep = jax.tree.map(lambda a: jnp.broadcast_to(a[None], (K,) + a.shape), data)
+        rep = jax.device_put(jax.tree.map(
+            lambda a: np.broadcast_to(np.asarray(a)[None], (K,) + a.shape), data))
         obj = eqx.tree_at(lambda o: o.model, self.objective, self.swarm_model())
         return SwarmSetup(objective=obj, lower=self.lower, upper=self.upper, data=rep,
                           params=self.pso_params, page_size=None, dtype=swarm.dtype)
@@ -256,7 +270,7 @@ class LawsProblem(AbstractProblem):
         if self.start is not None:
             return self.unknowns(*self.start)[None]
         obj = eqx.tree_at(lambda o: o.model, self.objective, self.swarm_model())
-        nu, eta, _ = objective_at(obj, jnp.zeros((0,)), self.view or self.full)
+        nu, eta, _ = objective_at(obj, np.zeros(0), self.view or self.full)
         return self.unknowns(np.asarray(nu), float(eta))[None]
 
     def choose_start(self, z: np.ndarray, source: str) -> Start:
@@ -270,8 +284,8 @@ class LawsProblem(AbstractProblem):
         scored = []
         for name, zc in cands:
             nu, eta = self.laws_of(zc)
-            scored.append((float(total_rms_of(m_rank, self.coding, jnp.asarray(nu), eta,
-                                              self.full)), name, zc))
+            scored.append((float(total_rms_of(m_rank, self.coding, nu, eta, self.full)), name,
+                           zc))
         _, name, best = min(scored, key=lambda s: (not np.isfinite(s[0]), s[0]))
         return Start(z=best[None], rms=self.score(best[None]), source=name,
                      candidates={s[1]: s[0] for s in scored})
@@ -298,7 +312,7 @@ class LawsProblem(AbstractProblem):
         m = self.resolved(nu, eta, data)
         return StageSpec(residual=LawResidual(m, self.coding),
                          args=jax.tree.map(lambda a: a[None], data),
-                         n=np.array([int(n_scored(data))]), lower=self.lm_lower,
+                         n=np.array([sum(r.n_scored for r in data)]), lower=self.lm_lower,
                          upper=self.lm_upper,
                          jacobian="forward" if self.model.dynamic else "linearize",
                          scaled=True, integration=(m.substeps, m.scheme))
@@ -306,7 +320,7 @@ class LawsProblem(AbstractProblem):
     def score(self, z: np.ndarray) -> np.ndarray:
         nu, eta = self.laws_of(z[0])
         m = self.resolved(nu, eta, self.full)
-        return np.array([float(total_rms_of(m, self.coding, jnp.asarray(nu), eta, self.full))])
+        return np.array([float(total_rms_of(m, self.coding, nu, eta, self.full))])
 
     def uncertainty(self, z: np.ndarray):
         if not self.coding.n_free:
@@ -314,7 +328,7 @@ class LawsProblem(AbstractProblem):
         nu, eta = self.laws_of(z[0])
         m = self.resolved(nu, eta, self.full)
         se, ok, dof, sigma = law_uncertainty(m, self.coding, self.full,
-                                             jnp.asarray(self.coding.free_of(nu, eta)))
+                                             self.coding.free_of(nu, eta))
         return np.asarray(se), np.asarray(ok), int(dof), float(sigma)
 
 
@@ -365,10 +379,11 @@ def solve_laws(problem: LawsProblem, *, swarm: Swarm | None, polish: Polish | No
         swarm = None
     if not coding.n_free:
         polish = None
-    out = solve(problem, swarm=swarm, polish=polish, uncertainty=uncertainty, key=key)
+    rows = swarm.restarts if swarm is not None else 1
+    out = solve(problem, swarm=swarm, polish=polish, uncertainty=uncertainty,
+                key=row_keys(key, rows))
     nu, eta = problem.laws_of(out.z[0])
-    nu = np.asarray(coding.complete(jnp.asarray(nu)))
-    coef = np.asarray(coding.coefficients(jnp.asarray(nu)))
+    coef = np.asarray(coefficients_of(coding, nu))
     res = JointOutcome(coef=coef, eta=float(eta) if coding.use_lag else None,
                        rms=float(out.rms[0]), outcome=out)
     if out.uncertainty is not None:

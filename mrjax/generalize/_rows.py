@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -103,9 +102,10 @@ def make_rows(batch: Batch, mask: np.ndarray, command: np.ndarray, *,
             idx = sel[g]
             T = int(n[idx].max())
             c = cmd[idx, :T] if varying[idx[0]] else level[idx]
-            out.append(Rows(*(jnp.asarray(arrays[k][idx, :T]) for k in ("x", "xdot", "dt",
-                                                                          "force")),
-                            mask=jnp.asarray(mask[idx, :T]), command=jnp.asarray(c, float)))
+            out.append(Rows(*jax.device_put(tuple(arrays[k][idx, :T] for k in ("x", "xdot",
+                                                                               "dt", "force"))),
+                            mask=jax.device_put(mask[idx, :T]),
+                            command=jax.device_put(np.asarray(c, float))))
     return tuple(out)
 
 
@@ -131,5 +131,5 @@ def packed_rows(batch: Batch, mask: np.ndarray, current: np.ndarray) -> tuple[Ro
         for a in range(4):
             out[a, u, :k] = piece[a]
         keep[u, :k] = True
-    return (Rows(*(jnp.asarray(a) for a in out), mask=jnp.asarray(keep),
-                 command=jnp.asarray(currents, float)),)
+    return (Rows(*jax.device_put(tuple(out)), mask=jax.device_put(keep),
+                 command=jax.device_put(np.asarray(currents, float))),)

@@ -300,9 +300,8 @@ def solve_box(
     if not free_idx:
         raise InputError("no free unknowns: every unknown is held")
     return _solve_core(residual, free_idx, int(max_steps), jacobian, bool(scaled), bool(snap),
-                       jnp.asarray(tol, float), jnp.asarray(z0), jnp.asarray(lo), jnp.asarray(hi),
-                       args, jnp.asarray(n), None if page_size is None or int(page_size) >= U
-                       else int(page_size))
+                       np.asarray(tol, float), z0, lo, hi, args, np.asarray(n),
+                       None if page_size is None or int(page_size) >= U else int(page_size))
 
 
 def polish(
@@ -371,7 +370,7 @@ def polish(
             "no free parameters: every parameter is fixed (free mask or lower == upper)"
         )
     model = resolve_model(model, theta0, batch.xdot, batch.dt, batch.mask)
-    mj = jnp.asarray(m)
+    mj = jax.device_put(m)
     sol = solve_box(ConditionResidual(model), theta0, lo, hi,
                     (batch.x, batch.xdot, batch.dt, batch.force, mj), m.sum(axis=1),
                     max_steps=max_steps, tol=tol, free=free_idx, jacobian="forward", snap=True,

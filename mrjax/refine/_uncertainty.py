@@ -212,9 +212,8 @@ def make_uncertainty(model, theta, out, free) -> Uncertainty:
     theta = np.asarray(theta)
     ci = intervals(theta, stderr, dof, 0.95)
     return Uncertainty(
-        theta=jnp.asarray(theta), stderr=jnp.asarray(stderr), cov=jnp.asarray(cov),
-        corr=jnp.asarray(corr), ci95=jnp.asarray(ci), identifiable=jnp.asarray(ident),
-        dof=jnp.asarray(dof), sigma=jnp.asarray(sigma),
+        **jax.device_put(dict(theta=theta, stderr=stderr, cov=cov, corr=corr, ci95=ci,
+                              identifiable=ident, dof=dof, sigma=sigma)),
         param_names=tuple(model.param_names), free=tuple(bool(f) for f in free),
     )
 
@@ -262,6 +261,6 @@ def uncertainty(
     free_idx = tuple(int(i) for i in np.flatnonzero(fr))
     if not free_idx:
         raise InputError("no free parameters")
-    out = uncertainty_core(model, free_idx, jnp.asarray(theta), batch.x, batch.xdot, batch.dt,
-                            batch.force, jnp.asarray(m))
+    out = uncertainty_core(model, free_idx, np.asarray(theta, float), batch.x, batch.xdot,
+                           batch.dt, batch.force, m)
     return make_uncertainty(model, theta, out, fr)

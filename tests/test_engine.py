@@ -1,0 +1,122 @@
+"""The identification engine (`mrjax.engine`): every problem kind through the one pipeline,
+settings as objects, and known answers over models x engine settings x methods
+(`tests/helpers.py` lists them), on short records."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import ENGINE_SETTINGS, METHODS, MODEL_NAMES, PROBLEM_KINDS, short_batch
+
+import mrjax
+from mrjax import engine, models
+from mrjax.data import paper_grid
+from mrjax.objective import rms_per_condition
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return paper_grid()
+
+
+# ------------------------------------------------------------------------ the matrix
+@pytest.mark.parametrize("setting", sorted(ENGINE_SETTINGS))
+@pytest.mark.parametrize("name", MODEL_NAMES)
+def test_every_model_and_setting_reaches_the_noise_floor(name, setting):
+    """Known answer over models x settings: on records simulated from known parameters with
+    1 % noise, the fit's RMS is at most the true parameters' (the noise floor) up to 0.5 %,
+    the polish never raises the swarm's RMS, and the reported swarm is the one set."""
+    batch, truth = short_batch(name)
+    res = mrjax.fit(name, batch, seed=0, **ENGINE_SETTINGS[setting])
+    truth_rms = rms_per_condition(models.get(name), truth, batch)
+    ratio = res.rms / truth_rms
+    print(f"\n{name} / {setting}: RMS / truth {np.round(ratio, 5)}")
+    assert np.all(ratio <= 1.005)
+    assert np.all(res.rms <= res.pso_rms * (1 + 1e-9))
+    assert res.swarm_mode == ENGINE_SETTINGS[setting]["swarm"].mode
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("name", ["kwok", "dahl"])
+def test_methods(name, method):
+    """Each method on a static and an ODE model: the swarm alone reaches within 5 % of the noise
+    floor; the polish alone never ends above its neutral start (and reports no swarm); with
+    both, the noise floor."""
+    batch, truth = short_batch(name)
+    model = models.get(name)
+    res = mrjax.fit(name, batch, seed=0, method=method)
+    truth_rms = rms_per_condition(model, truth, batch)
+    if method == "lm":
+        start = np.broadcast_to(np.clip(model.default_start(), *model.bounds), truth.shape)
+        assert np.all(res.rms <= rms_per_condition(model, start, batch) * (1 + 1e-12))
+        assert np.all(res.generations == -1) and np.all(np.isnan(res.pso_rms))
+        assert res.swarm_mode == "none"
+    elif method == "pso":
+        assert np.all(res.rms <= 1.05 * truth_rms)
+        assert res.polish_status == ("none",) * 2 and np.all(res.polish_steps == 0)
+        assert np.all(np.isfinite(res.stderr[:, 0]))  # std-errors without a polish
+    else:
+        assert np.all(res.rms <= 1.005 * truth_rms)
+
+
+def test_settings_objects_and_keywords_agree(grid):
+    """The keyword options set fields of the settings objects (one mapping): the same fit either
+    way, bit for bit; a keyword given wins over the object's field."""
+    sub = grid.subset([0, 20])
+    a = mrjax.fit("kwok", sub, seed=2, swarm=mrjax.Swarm(mode="full", restarts=2,
+                                                          max_generations=30),
+                  polish=mrjax.Polish(max_steps=40, tol=1e-7))
+    b = mrjax.fit("kwok", sub, seed=2, swarm_mode="full", restarts=2, max_generations=30,
+                  polish_steps=40, polish_tol=1e-7)
+    np.testing.assert_array_equal(a.theta, b.theta)
+    np.testing.assert_array_equal(a.history, b.history)
+    c = mrjax.fit("kwok", sub, seed=2, swarm=mrjax.Swarm(mode="full", restarts=2,
+                                                          max_generations=5),
+                  max_generations=30, polish=mrjax.Polish(max_steps=40, tol=1e-7))
+    np.testing.assert_array_equal(a.theta, c.theta)
+
+
+def test_settings_are_checked_at_construction():
+    for bad in (dict(n_particles=0), dict(restarts=1.5), dict(mode="ring"), dict(generations=0),
+                dict(params="fast")):
+        with pytest.raises(mrjax.InputError):
+            mrjax.Swarm(**bad)
+    for bad in (dict(max_steps=0), dict(tol=-1.0), dict(tol=float("nan"))):
+        with pytest.raises(mrjax.InputError):
+            mrjax.Polish(**bad)
+    with pytest.raises(mrjax.InputError, match="unknown option"):
+        engine.settings(method="pso+lm", particles=3)
+    with pytest.raises(mrjax.InputError, match="must be a mrjax.Swarm"):
+        mrjax.fit("kwok", paper_grid().subset([0]), swarm="full")
+
+
+def test_every_kind_runs_through_the_one_engine(grid, monkeypatch):
+    """`mrjax.fit`, `generalize(method="joint")` and `identify` each build a problem and run the
+    one pipeline: every swarm and every polish of the three goes through `mrjax.engine.solve`
+    (its swarm stage and `mrjax.refine.solve_box`), with the problem kind of `PROBLEM_KINDS`."""
+    import mrjax.engine._run as run
+
+    seen: list[tuple[str, str]] = []
+    real_swarm, real_box = run.run_swarm, run.solve_box
+
+    def swarm(problem, *a, **k):
+        seen.append(("swarm", type(problem).__name__))
+        return real_swarm(problem, *a, **k)
+
+    def box(*a, **k):
+        seen.append(("polish", type(a[0]).__name__))
+        return real_box(*a, **k)
+
+    monkeypatch.setattr(run, "run_swarm", swarm)
+    monkeypatch.setattr(run, "solve_box", box)
+    sub = grid.subset([0, 6, 12, 18, 24, 30])  # 1 Hz / 4 mm at six currents
+    res = mrjax.fit("kwok", sub, seed=0, max_generations=40)
+    assert seen == [("swarm", "TestsProblem"), ("polish", "ConditionResidual")]
+    seen.clear()
+    gm = mrjax.generalize.generalize(res, sub, method="joint", seed=0, max_generations=20)
+    assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]
+    assert gm.total_rms <= gm.info["two_step_total_rms_N"]
+    seen.clear()
+    mrjax.generalize.identify(sub, "kwok", lag=None, seed=0, max_generations=20)
+    assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]
+    assert set(PROBLEM_KINDS) == {"TestsProblem", "LawsProblem"}
