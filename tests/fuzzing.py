@@ -42,6 +42,15 @@ def valid_csv() -> bytes:
     return buf.getvalue().encode()
 
 
+def with_cell(data: bytes, line: int, column: int, text: bytes) -> bytes:
+    """`data` (a CSV) with the cell of 0-based `line` and `column` replaced by `text`."""
+    lines = data.split(b"\n")
+    cells = lines[line].split(b",")
+    cells[column] = text
+    lines[line] = b",".join(cells)
+    return b"\n".join(lines)
+
+
 def dataclass_relabel(c, label):
     import dataclasses
 

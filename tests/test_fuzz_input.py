@@ -35,15 +35,18 @@ def _write(name: str, data: bytes) -> Path:
 
 
 #: Cases found by fuzzing, kept: a corrupted (binary) file named .csv, whose carriage returns
-#: made Python's csv module raise (issue 27); a header whose unit pint divides by zero.
+#: made Python's csv module raise (issue 27); a header whose unit pint divides by zero; a
+#: displacement of 1e308, whose sanity check overflowed (a numpy warning line).
 FOUND = (bytes(range(256)) * 3,
-         b"condition,current_A,time_s,displacement_m,velocity_m_018846455,force_N\na,0,0,0,0,0\n")
+         b"condition,current_A,time_s,displacement_m,velocity_m_018846455,force_N\na,0,0,0,0,0\n",
+         fz.with_cell(fz.valid_csv(), 70, 5, b"1e308"))
 
 
 @settings(max_examples=120, **SETTINGS)
 @given(fz.mutated(fz.valid_csv()))
 @example(FOUND[0])
 @example(FOUND[1])
+@example(FOUND[2])
 def test_mutated_csv_ends_in_a_result_or_one_line(data):
     p = _write("fuzz.csv", data)
     fz.ends_well(lambda: md.load(p))

@@ -238,7 +238,11 @@ def assemble(
                 label = _label(key, [str(j)] if j is not None else [])
             else:
                 label = _label(m.label if m.label is not None else read.stem, parts)
-            out.append(_one(read, cols, idx, key, m, fallback, label, source, window_s, strict))
+            # absurd values (1e308) overflow in the estimates and checks: their non-finite
+            # results are caught by the checks of the condition, not printed by numpy
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                out.append(_one(read, cols, idx, key, m, fallback, label, source, window_s,
+                                strict))
     return out
 
 
@@ -312,6 +316,12 @@ def _one(read: ReadColumns, cols: Mapping[str, Column], idx: Rows, key: str | No
             v = estimate_velocity(cond.t, cond.x, window_s=window)
         except InputError as e:
             raise InputError(f"{source}: no velocity column, and {e}") from None
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:  # displacements near the float limit
+            raise InputError(
+                f"{source}: no velocity column, and the velocity estimated from the "
+                f"displacement is not finite at row {bad[0]} (the displacement reaches "
+                f"{np.max(np.abs(cond.x)):g} m): check its values and unit")
         notes.append(f"velocity estimated from displacement (Savitzky-Golay, {how})")
         estimated.add("xdot")
     changes: dict[str, object] = {} if xdot is not None else {"xdot": v}

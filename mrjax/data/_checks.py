@@ -65,6 +65,12 @@ def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
 
 
 def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd values: no ratio, no noise
+        got = _ratio_of(t, x, xdot)
+    return got if got is not None and all(map(math.isfinite, got)) else None
+
+
+def _ratio_of(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
     if t.shape[0] < 16 or not np.ptp(x) > 0:
         return None
     t = t - t[0]
@@ -100,7 +106,8 @@ def check_record(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None,
     """:func:`check_condition` on the arrays of a record (SI): `xdot` None where the velocity
     was estimated (then not checked against the displacement)."""
     out = []
-    span = float(np.ptp(x))
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = float(np.ptp(x))
     lo, hi = STROKE_RANGE_M
     if span > hi:
         out.append(
