@@ -115,7 +115,8 @@ def _outcome(fn):
 
 @settings(max_examples=100, **SETTINGS)
 @given(fz.mutated(fz.valid_csv()), st.sampled_from([64, 700, 1 << 20]), st.booleans())
-def test_fast_csv_path_reads_as_the_exact_one(data, block, strict):
+@example(fz.with_cell(fz.valid_csv(), 12, 0, "\ufeff1".encode()), 97, True)  # found: a block
+def test_fast_csv_path_reads_as_the_exact_one(data, block, strict):  # starting with U+FEFF
     p = _write("same.csv", data)
     columns = None if strict else dict(SPEC.columns)
 

@@ -373,6 +373,8 @@ def _fast(data: bytes, first_line: int, ends: int, lay: _Layout) -> Part | None:
     import pyarrow.compute as pc
     from pyarrow import csv as pacsv
 
+    if data.startswith(b"\xef\xbb\xbf"):  # pyarrow would drop it as a byte-order mark; in
+        return None  # the middle of a file it is a character of the first cell
     n_lines = ends + (0 if data.endswith((b"\n", b"\r")) else 1)
     names = [f"f{j}" for j in range(lay.width + lay.trailing)]
     others = ([lay.width] if lay.trailing else []) + ([] if lay.strict else lay.unused)
