@@ -267,6 +267,20 @@ def snapshot(d: Path) -> dict[str, bytes]:
     return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
 
 
+def raises_one_line(fn, *needles) -> str:
+    """Call `fn`, expect a one-line `mrjax.InputError` whose message contains every needle;
+    returns the message."""
+    import pytest
+
+    with pytest.raises(mrjax.InputError) as info:
+        fn()
+    msg = str(info.value)
+    assert "\n" not in msg
+    for n in needles:
+        assert str(n) in msg, f"{n!r} not in {msg!r}"
+    return msg
+
+
 def one_error_line(err: str) -> str:
     """The last stderr line, checked to be one `mrjax: error: ...` line without a traceback."""
     lines = err.strip().splitlines()

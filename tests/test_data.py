@@ -6,23 +6,15 @@ import math
 import numpy as np
 import pytest
 import scipy.io
+from helpers import raises_one_line
 
 import mrjax.data as md
-from mrjax._errors import InputError
 
 # --------------------------------------------------------------------------------------------
 # Helpers
 
 
-def _raises(fn, *needles):
-    """Call `fn`, expect a one-line InputError whose message contains every needle."""
-    with pytest.raises(InputError) as info:
-        fn()
-    msg = str(info.value)
-    assert "\n" not in msg
-    for n in needles:
-        assert str(n) in msg, f"{n!r} not in {msg!r}"
-    return msg
+_raises = raises_one_line
 
 
 def _sim(current=0.5, frequency=1.0, amplitude=0.008):

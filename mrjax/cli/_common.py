@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ..data import Batch, Condition, DataSpec, describe, find_files, load, make_batch
+from ..data import Batch, Condition, DataSpec, Source, describe, find_files, load, make_batch
+from ..fitting import RUNTIME_BYTES, default_budget
 from ..models import AbstractModel, check_bounds
 from ._parse import DATA_FLAGS, say
 
@@ -101,6 +102,30 @@ def load_conditions(paths: Sequence[str | os.PathLike],
     return load(files, spec=spec)
 
 
+#: A fit holds its tests when their parsed columns take at most this share of the budget left
+#: after the runtime (the batch built from them takes about as much again; the chunks need the
+#: rest); otherwise they are streamed from the files.
+HOLD_SHARE = 1 / 3
+
+
+def load_tests(paths: Sequence[str | os.PathLike], spec: DataSpec | None,
+               memory: int | None) -> Batch | Source:
+    """The tests of a fit within `memory` bytes (None: the default budget of
+    `mrjax.fitting.default_budget`): one padded batch when the budget holds them
+    (`HOLD_SHARE`), else a `mrjax.data.Source` that the fit reads chunk by chunk."""
+    files = find_files(paths)
+    budget = memory if memory is not None else default_budget()
+    keep = max(0, int(HOLD_SHARE * (budget - RUNTIME_BYTES)))
+    say(f"loading {len(files)} file{'s' if len(files) != 1 else ''}...")
+    source = Source.scan(files, spec=spec, keep_bytes=keep)
+    if source.kept:
+        return source.batch()
+    C = source.n_conditions
+    say(f"the {C} tests take more than the memory budget ({budget / 1e9:.3g} GB) can hold "
+        f"with the fit: they are read from the files chunk by chunk")
+    return source
+
+
 def load_batch(paths: Sequence[str | os.PathLike], spec: DataSpec | None = None) -> Batch:
     """Expand files/directories, say how many, load them (with `spec`, if any) into one padded
     batch."""
@@ -135,14 +160,15 @@ def load_batches(sets: Sequence[Sequence[str | os.PathLike]],
     return batches
 
 
-def say_estimates(batch: Batch) -> None:
+def say_estimates(batch: Batch | np.ndarray) -> None:
     """One stage line saying how many tests' velocity, frequency or amplitude are estimates
-    rather than read (nothing when none is); the outputs list them per test."""
-    est = np.asarray(batch.estimated, bool)
+    rather than read (nothing when none is; `batch`: the tests, or their (C, 3) `estimated`
+    flags); the outputs list them per test."""
+    est = np.asarray(batch.estimated if isinstance(batch, Batch) else batch, bool)
     parts = [f"{what} of {int(est[:, j].sum())}"
              for j, what in enumerate(("velocity", "frequency", "amplitude")) if est[:, j].any()]
     if parts:
-        C = batch.n_conditions
+        C = est.shape[0]
         say(f"estimated, not read ('estimated' in the JSON output): {', '.join(parts)} of the "
             f"{C} test{'s' if C != 1 else ''}")
 

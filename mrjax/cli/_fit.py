@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 
 import numpy as np
@@ -11,14 +12,15 @@ from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir, json_bytes
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
-from ..data import fit_mask
-from ..fitting import fit
+from ..data import Source, fit_mask
+from ..fitting import RUNTIME_BYTES, fit
 from ..generalize import GeneralizedModel, generalize, identify
 from ..models import get, source_of
 from ._common import (
+    HOLD_SHARE,
     data_spec,
     force_figures,
-    load_batch,
+    load_tests,
     parse_bounds,
     say_estimates,
     use_agg,
@@ -29,16 +31,18 @@ from ._parse import say
 JOURNAL = ".mrjax-journal"
 
 
-def figures(result, batch, gm) -> dict[str, bytes]:
+def figures(result, batch, gm, rows=None) -> dict[str, bytes]:
     """The PNG figures of a fit (and of its laws `gm`, if any), name -> bytes: measured vs
     fitted F-x and F-v loops of the periodic tests (`loops.png`), force against time of the
-    others (`force_time.png`), and the per-condition summaries."""
+    others (`force_time.png`), and the per-condition summaries. `rows`: the tests of the fit
+    that `batch` holds (default all: a streamed fit draws the loops of a sample)."""
     use_agg()
     from .. import report as rp  # imported here: matplotlib only when figures are drawn
 
     png = rp.save_png_bytes
     name = result.model.name
-    out = force_figures(result, batch, result.predict(batch), result.rms,
+    shown = result if rows is None else result.subset(rows)
+    out = force_figures(shown, batch, shown.predict(batch), shown.rms,
                         titles=(f"{name}: measured vs fitted loops",
                                 f"{name}: measured vs fitted force"))
     out.update({
@@ -62,11 +66,18 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
                          "not both")
     bounds = parse_bounds(args.bounds, model)
     spec = data_spec(args)
-    batch = load_batch(args.files, spec)
-    say_estimates(batch)
-    varying = _varying_command(batch)
-    if args.generalize == "joint" and (varying or _voltage_command(batch)):
-        return _run_identify(args, model, bounds, batch, out)
+    data = load_tests(args.files, spec, args.memory)
+    streamed = isinstance(data, Source)
+    survey = _survey(data, args.memory)
+    say_estimates(survey.estimated)
+    varying = survey.varying
+    if streamed and args.generalize:
+        need = RUNTIME_BYTES + data.batch_bytes() / HOLD_SHARE
+        raise InputError(f"--generalize needs every test in memory, and the {survey.n} tests "
+                         f"take more than --memory holds with the fit: give --memory "
+                         f"{need / 1e9:.2g}GB or more")
+    if args.generalize == "joint" and (varying or survey.voltage):
+        return _run_identify(args, model, bounds, data, out)
     if varying and args.generalize:
         raise InputError(f"--generalize {args.generalize} needs --generalize joint: "
                          f"{len(varying)} record(s) carry a command that varies in time "
@@ -75,17 +86,17 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         say(f"warning: the command varies in time in {len(varying)} record(s) (first: "
             f"{varying[0]!r}): a per-test fit averages over it; --generalize joint identifies "
             "laws of the command")
-    unknown = [lab for lab, i in zip(batch.labels, np.asarray(batch.current)) if np.isnan(i)]
+    unknown = survey.unknown
     if args.generalize and unknown:  # fail before the fit, not after it
         raise InputError(f"--generalize needs the current of every test; it is unknown for "
-                         f"{len(unknown)} of {len(batch.labels)} (first: {unknown[0]!r}): give "
+                         f"{len(unknown)} of {survey.n} (first: {unknown[0]!r}): give "
                          f"--current or a spec")
-    C = batch.n_conditions
+    C = survey.n
     how = args.method if args.method == "lm" else f"{args.method}, {args.swarm} swarm"
     say(f"fitting {model.name} on {C} condition{'s' if C != 1 else ''} ({how})...")
     journal = out.path / JOURNAL
     result = fit(
-        model, batch, method=args.method, swarm_mode=args.swarm, seed=args.seed,
+        model, data, method=args.method, swarm_mode=args.swarm, seed=args.seed,
         n_particles=args.particles,
         max_generations=args.max_generations if args.max_generations is not None else 200,
         generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
@@ -93,6 +104,10 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         max_memory=args.memory, chunk_size=args.chunk_size, journal=journal,
         resume=args.resume,
     )
+    batch, rows = data, None
+    if streamed:  # the loops of an even sample of the tests
+        rows = np.unique(np.linspace(0, C - 1, min(C, SAMPLE_TESTS)).round().astype(int))
+        batch = data.batch(rows, warn=False) if not args.no_plots else None
     gm = None
     if args.generalize:
         say(f"fitting current-dependent laws ({args.generalize})...")
@@ -103,7 +118,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
              "fit.csv": result.to_csv().encode()}
     if not args.no_plots:
         say("drawing figures...")
-        files.update(figures(result, batch, gm))
+        files.update(figures(result, batch, gm, rows))
     say(f"writing {len(files)} files to {out.path}...")
     out.write(files)
     shutil.rmtree(journal, ignore_errors=True)  # the outputs hold everything it held
@@ -115,6 +130,46 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
             if w["kind"] == "too_few_currents":
                 print(f"warning: {w['message']}")
     return 0
+
+
+#: Tests whose loops a streamed fit draws (evenly spread).
+SAMPLE_TESTS = 36
+#: Bytes of tests read at a time to survey a streamed fit's tests before it starts.
+SURVEY_BYTES = 256_000_000
+
+
+@dataclasses.dataclass(frozen=True)
+class Survey:
+    """What `mrjax fit` asks of every test before the fit: their number `n`, which of velocity,
+    frequency and amplitude are estimates (`estimated`, (n, 3)), the labels of the tests whose
+    command varies in time (`varying`) or whose current is unknown (`unknown`), and whether a
+    command is a voltage (`voltage`)."""
+
+    n: int
+    estimated: np.ndarray
+    varying: list[str]
+    unknown: list[str]
+    voltage: bool
+
+
+def _survey(data, memory: int | None) -> Survey:
+    """The :class:`Survey` of a batch, or of a source read a group of tests at a time (within
+    a quarter of `memory`)."""
+    if isinstance(data, Source):
+        cap = SURVEY_BYTES if memory is None else min(SURVEY_BYTES, memory // 4)
+        per = max(1, cap // (3 * max(1, data.batch_bytes(1))))
+        C = data.n_conditions
+        groups = (data.batch(np.arange(a, min(C, a + per))) for a in range(0, C, per))
+    else:
+        groups = iter([data])
+    est, varying, unknown, voltage = [], [], [], False
+    for b in groups:
+        est.append(np.asarray(b.estimated, bool))
+        varying += _varying_command(b)
+        voltage = voltage or _voltage_command(b)
+        unknown += [lab for lab, i in zip(b.labels, np.asarray(b.current)) if np.isnan(i)]
+    estimated = np.concatenate(est)
+    return Survey(len(estimated), estimated, varying, unknown, voltage)
 
 
 def _command_rows(batch) -> list[tuple[str, int, np.ndarray]]:

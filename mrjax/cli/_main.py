@@ -47,8 +47,8 @@ def _fit_parser(sub, common) -> None:
         "DIR/.mrjax-journal until the outputs are written, so that an interrupted run "
         "continues with --resume.")
     p.add_argument("files", nargs="+", metavar="FILE",
-                   help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
-                   "the data options below)")
+                   help="data files or directories (.csv, .txt/.dat, .mat, .parquet, "
+                   ".feather/.arrow; any layout with the data options below)")
     p.add_argument("--model", required=True, metavar="NAME|FILE.py:NAME",
                    help="model name: bingham, kwok (alias tanh), bouc_wen (bw), "
                    "modified_bouc_wen (spencer, mbw), dahl, lugre, herschel_bulkley, polynomial, "

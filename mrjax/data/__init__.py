@@ -1,8 +1,11 @@
 """Test-condition data: conditions, padded batches and their masks, the swarm's views of
-records, data specs, loaders, units, velocity, sanity checks, reports and the synthetic grid."""
+records, data specs, loaders (long CSV, UTFSM text, MATLAB, Parquet, Feather), a source of tests
+left in their files and read a chunk at a time, units, velocity, sanity checks, reports and the
+synthetic grid."""
 
 from ._checks import check_condition as check_condition
 from ._coerce import as_batch as as_batch
+from ._columnar import load_columnar as load_columnar
 from ._columns import ROLES as ROLES
 from ._columns import Column as Column
 from ._columns import Meta as Meta
@@ -26,6 +29,7 @@ from ._loaders import load_file as load_file
 from ._mask import check_mask as check_mask
 from ._mask import fit_mask as fit_mask
 from ._mat import load_mat as load_mat
+from ._source import Source as Source
 from ._spec import DataSpec as DataSpec
 from ._spectrum import estimate_motion as estimate_motion
 from ._synthetic import PAPER_COEFFICIENTS as PAPER_COEFFICIENTS

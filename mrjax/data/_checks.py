@@ -4,7 +4,11 @@
     displacement. If it is a constant multiple of it (least-squares ratio away from 1 by more
     than 1.5x, correlation above 0.9), a unit was probably mixed up; the message names the
     nearest of the usual factors (10, 100, 1000, 25.4, 2.54 and their inverses: cm/mm, m/cm,
-    m/mm, in/mm, in/cm) and the units that give it. An opposite sign is reported too.
+    m/mm, in/mm, in/cm) and the units that give it. An opposite sign is reported too. The
+    ratio is taken between the *integral* of the measured velocity (trapezoid rule on the
+    sample times) and the displacement, an offset and a linear drift removed from both: the
+    same ratio as velocity to the derivative of displacement, without differentiating the
+    displacement's noise, in O(T) (a fleet's thousands of records are checked as they load).
 - **Displacement range.** A damper stroke spans roughly 0.1 mm to 1 m; a displacement that
     spans more than 1 m or less than 10 um peak to peak is probably in the wrong unit (the
     lower bound only for records of at least one period of their known frequency: a shorter
@@ -49,20 +53,41 @@ def _factor_hint(ratio: float) -> str:
 
 
 def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
-    """`(ratio, correlation)` of the measured velocity to the derivative of the displacement
-    (least-squares ratio), or None when the record is too short or the motion too small to
-    tell (fewer than 16 samples, or no displacement signal)."""
-    from ._velocity import estimate_velocity
+    """`(ratio, correlation)` of the measured velocity to the derivative of the displacement,
+    or None when the record is too short or the motion too small to tell (fewer than 16
+    samples, or no displacement signal).
 
-    if cond.n_samples < 16 or not np.ptp(cond.x) > 0:
+    The ratio is the least-squares ratio of the integral of the velocity to the displacement
+    (see the module notes), both with their offset and linear drift removed; the correlation
+    is theirs.
+    """
+    return _ratio(cond.t, cond.x, cond.xdot)
+
+
+def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd values: no ratio, no noise
+        got = _ratio_of(t, x, xdot)
+    return got if got is not None and all(map(math.isfinite, got)) else None
+
+
+def _ratio_of(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
+    if t.shape[0] < 16 or not np.ptp(x) > 0:
         return None
-    est = estimate_velocity(cond.t, cond.x)
-    ee = float(np.dot(est, est))
-    vv = float(np.dot(cond.xdot, cond.xdot))
-    if not (ee > 0 and vv > 0):
+    t = t - t[0]
+    moved = np.concatenate([[0.0], np.cumsum(0.5 * (xdot[1:] + xdot[:-1]) * np.diff(t))])
+    tc = t - t.mean()
+    tt = float(np.dot(tc, tc))
+
+    def residual(a: np.ndarray) -> np.ndarray:  # a less its offset and linear drift
+        a = a - a.mean()
+        return a - tc * (float(np.dot(tc, a)) / tt)
+
+    x, m = residual(x), residual(moved)
+    xx, mm = float(np.dot(x, x)), float(np.dot(m, m))
+    if not (xx > 0 and mm > 0):
         return None
-    ev = float(np.dot(est, cond.xdot))
-    return ev / ee, ev / math.sqrt(ee * vv)
+    xm = float(np.dot(x, m))
+    return xm / xx, xm / math.sqrt(xx * mm)
 
 
 def check_condition(cond: Condition) -> list[str]:
@@ -72,22 +97,30 @@ def check_condition(cond: Condition) -> list[str]:
 
     **Returns:** one line per problem found (empty if none), without the file name.
     """
+    return check_record(cond.t, cond.x, None if "xdot" in cond.estimated else cond.xdot,
+                        cond.frequency)
+
+
+def check_record(t: np.ndarray, x: np.ndarray, xdot: np.ndarray | None,
+                 frequency: float | None) -> list[str]:
+    """:func:`check_condition` on the arrays of a record (SI): `xdot` None where the velocity
+    was estimated (then not checked against the displacement)."""
     out = []
-    span = float(np.ptp(cond.x))
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = float(np.ptp(x))
     lo, hi = STROKE_RANGE_M
     if span > hi:
         out.append(
             f"displacement spans {span:.4g} m peak to peak, more than a damper stroke: is its "
             f"unit right (mm given as m?)"
         )
-    elif span < lo and (cond.frequency is None
-                        or cond.frequency * float(cond.t[-1] - cond.t[0]) >= 1.0):
+    elif span < lo and (frequency is None or frequency * float(t[-1] - t[0]) >= 1.0):
         out.append(
             f"displacement spans {span:.3g} m peak to peak, less than {lo * 1e6:g} um: is its "
             f"unit right (m given as mm?)"
         )
-    if "xdot" not in cond.estimated:
-        got = velocity_ratio(cond)
+    if xdot is not None:
+        got = _ratio(t, x, xdot)
         if got is not None:
             ratio, corr = got
             if corr < -0.9:

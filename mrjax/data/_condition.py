@@ -297,36 +297,43 @@ def make_batch(
     if T < longest:
         raise InputError(f"length={T} is shorter than the longest condition ({longest} samples)")
     C = len(conditions)
-    out = {k: np.zeros((C, T)) for k in ("t", "x", "xdot", "force", "dt", "command")}
-    mask = np.zeros((C, T), dtype=bool)
-    kind = np.zeros(C, dtype=np.int32)
-    estimated = np.zeros((C, len(ESTIMATED_FIELDS)), dtype=bool)
-    for i, c in enumerate(conditions):
-        n = c.n_samples
-        dt = c.dt
-        out["t"][i, :n] = c.t
-        out["t"][i, n:] = c.t[-1] + dt[-1] * np.arange(1, T - n + 1)
-        out["x"][i, :n] = c.x
-        out["x"][i, n:] = c.x[-1]
-        out["xdot"][i, :n] = c.xdot
-        out["force"][i, :n] = c.force
-        out["dt"][i, :n] = dt
-        out["dt"][i, n:] = dt[-1]
-        mask[i, :n] = True
-        if c.command is not None:
-            out["command"][i, :n] = c.command
-            out["command"][i, n:] = c.command[-1]
-            kind[i] = COMMAND_UNITS.index(c.command_unit)
-        estimated[i] = [name in c.estimated for name in ESTIMATED_FIELDS]
     fdt = dtype if dtype is not None else jnp.zeros(()).dtype
+    n = np.asarray([c.n_samples for c in conditions])
+
+    def stacked(name: str):
+        """One (C, T) field, built on the host and handed to JAX before the next one (the
+        host copy of a fleet's batch is one field, not all of them)."""
+        out = np.zeros((C, T))
+        for i, c in enumerate(conditions):
+            k = n[i]
+            if name == "t":
+                out[i, :k] = c.t
+                out[i, k:] = c.t[-1] + (c.t[-1] - c.t[-2]) * np.arange(1, T - k + 1)
+            elif name == "dt":
+                out[i, :k - 1] = np.diff(c.t)
+                out[i, k - 1:] = c.t[-1] - c.t[-2]
+            elif name in ("x", "command"):
+                a = c.x if name == "x" else c.command
+                if a is not None:
+                    out[i, :k] = a
+                    out[i, k:] = a[-1]
+            else:
+                out[i, :k] = getattr(c, name)
+        return jax.device_put(out.astype(fdt, copy=False))
+
+    arrays = {k: stacked(k) for k in ("t", "x", "xdot", "force", "dt", "command")}
+    mask = np.arange(T)[None, :] < n[:, None]
+    kind = np.asarray([0 if c.command is None else COMMAND_UNITS.index(c.command_unit)
+                       for c in conditions], dtype=np.int32)
+    estimated = np.asarray([[name in c.estimated for name in ESTIMATED_FIELDS]
+                            for c in conditions], dtype=bool).reshape(C, len(ESTIMATED_FIELDS))
 
     def meta(name):
         return np.asarray([_nan_if_none(getattr(c, name)) for c in conditions], dtype=fdt)
 
     # host arrays moved to the device as they are (`device_put` transfers; `jnp.asarray` of a
     # host array would compile a program per shape)
-    return Batch(**jax.device_put(dict(
-        **{k: np.asarray(v, dtype=fdt) for k, v in out.items()},
+    return Batch(**arrays, **jax.device_put(dict(
         mask=np.asarray(mask), current=meta("current"), frequency=meta("frequency"),
         amplitude=meta("amplitude"), command_kind=np.asarray(kind),
         estimated=np.asarray(estimated))), labels=tuple(c.label for c in conditions))

@@ -18,7 +18,8 @@ from ._columns import Meta
 PathLike = str | os.PathLike
 
 #: File extensions that `mrjax.data.load` reads.
-DATA_SUFFIXES: tuple[str, ...] = (".csv", ".txt", ".dat", ".mat")
+DATA_SUFFIXES: tuple[str, ...] = (".csv", ".txt", ".dat", ".mat", ".parquet", ".pq", ".feather",
+                                  ".arrow")
 
 _NUM = r"\d+(?:[xXpP.]\d+)?"
 _SEP = r"[_\-\s]*"
@@ -56,7 +57,7 @@ def parse_label(name: PathLike) -> tuple[float, float, float]:
 
     **Arguments:**
 
-    - `name`: a file name or path (a `.txt`, `.dat`, `.csv` or `.mat` extension is ignored) of
+    - `name`: a file name or path (a data file's extension, e.g. `.txt`, is ignored) of
         the form `<amplitude>mm<frequency>Hz<current>A`. The decimal point may be written `x`,
         `p` or `.`; `_`, `-` or spaces may separate the three parts, and the name may carry a
         prefix or suffix set off by one of them (`damper_25mm0p1Hz_0p75A_run2`). The amplitude
@@ -111,9 +112,9 @@ def label_meta(path: PathLike) -> Meta:
 def find_files(paths: PathLike | Sequence[PathLike]) -> list[Path]:
     """The data files named by `paths`, in the order `mrjax.data.load` reads them.
 
-    **Arguments:** `paths`: a file, a directory (every `.csv`, `.txt`, `.dat`, `.mat` file
-    directly inside it, sorted by name, hidden files skipped), or a list of files and
-    directories.
+    **Arguments:** `paths`: a file, a directory (every data file directly inside it: `.csv`,
+    `.txt`, `.dat`, `.mat`, `.parquet`, `.pq`, `.feather`, `.arrow`; sorted by name, hidden
+    files skipped), or a list of files and directories.
 
     **Returns:** the list of files.
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import InputError
-from ._build import ReadColumns, assemble
+from ._build import Codes, ReadColumns, assemble
 from ._columns import Column
 from ._condition import Batch, Condition
 from ._csv import column_index, conventional_columns
@@ -30,7 +30,8 @@ def _numeric(frame, j: int, name: str, where: str) -> np.ndarray:
             f"{where}, row {k} (index {frame.index[k]!r}), column {name!r}: not a number: "
             f"{series.iloc[k]!r}"
         )
-    return values.to_numpy(dtype=float, na_value=np.nan)
+    return np.array(values.to_numpy(dtype=float, na_value=np.nan), copy=True)  # not a view
+    # of the caller's frame: the conditions hold slices of it
 
 
 def from_frame(frame: pd.DataFrame, spec: DataSpec | None = None, *,
@@ -76,8 +77,8 @@ def from_frame(frame: pd.DataFrame, spec: DataSpec | None = None, *,
     for role, c in asked:
         j = column_index(header, c, role, name)
         if c.unit is None:
-            text = frame.iloc[:, j].astype(str).str.strip().to_numpy(dtype=object)
-            values[c] = text
+            codes, labels = pd.factorize(frame.iloc[:, j].astype(str).str.strip(), sort=False)
+            values[c] = Codes(codes.astype(np.int32), tuple(str(s) for s in labels))
         else:
             values[c] = _numeric(frame, j, header[j], name)
     unused = [h for h in header if h not in {header[column_index(header, c, r, name)] for r, c in asked}]

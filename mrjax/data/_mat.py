@@ -11,6 +11,7 @@ from ._build import ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
+from ._progress import advance
 from ._text import units_check
 from ._units import check_unit
 
@@ -136,6 +137,7 @@ def read_mat(
     if not strict and (unused := [k for k in present if k not in used]):
         notes.append(f"variable(s) {', '.join(unused)} not used")
     n = next(iter(values.values())).shape[0]
+    advance(check_file(path).stat().st_size)
     return ReadColumns(src, stem(path), n, dict(columns), wide, values, None, notes, file_meta)
 
 

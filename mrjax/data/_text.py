@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import InputError
-from ._build import ReadColumns, assemble
+from ._build import LineMap, ReadColumns, assemble
 from ._columns import Column, Meta
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
+from ._progress import advance
 from ._units import check_unit
 
 #: Default units of :func:`load_txt`: time, displacement, velocity, force (UTFSM files).
@@ -176,7 +177,9 @@ def read_text(
     unused = sorted(set(range(data.shape[1])) - {c.index for c in values})
     if unused and not strict:
         notes.append(f"column(s) {', '.join(map(str, unused))} not used")
-    return ReadColumns(where, stem(path), data.shape[0], dict(columns), wide, values, lines, notes)
+    advance(p.stat().st_size)
+    return ReadColumns(where, stem(path), data.shape[0], dict(columns), wide, values,
+                       None if lines is None else LineMap.of(lines), notes)
 
 
 def load_txt(

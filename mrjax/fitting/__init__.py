@@ -21,9 +21,11 @@ from ._chunks import chunk_plan as chunk_plan
 from ._fit import fit as fit
 from ._journal import Journal as Journal
 from ._plan import DEFAULT_MEMORY_FRACTION as DEFAULT_MEMORY_FRACTION
+from ._plan import RUNTIME_BYTES as RUNTIME_BYTES
 from ._plan import ChunkPlan as ChunkPlan
 from ._plan import available_memory as available_memory
 from ._plan import condition_bytes as condition_bytes
+from ._plan import default_budget as default_budget
 from ._plan import parse_memory as parse_memory
 from ._plan import plan_chunks as plan_chunks
 from ._problem import ModelSwarm as ModelSwarm

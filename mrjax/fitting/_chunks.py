@@ -37,11 +37,21 @@ calibrated by measuring the peak RSS of fits in fresh processes; see its docstri
 resident part from the data and the results (:func:`resident_bytes`). The chunk holds as many
 conditions as the budget leaves room for: by default `DEFAULT_MEMORY_FRACTION` (half) of the
 memory available when the fit starts, on top of what the process already holds.
+
+**Streamed.** Tests that stay in their files (a `mrjax.data.Source` not held in memory) are
+read twice, a group of tests at a time: once, `CHECK_BYTES` at a time, to check every test as a
+whole batch is checked (its errors and warnings before any work) and to find the swarm view's
+length of the whole; then chunk by chunk, each read as it is fitted
+(`Source.batch(rows, length=source.length)`, rows bit for bit those of the whole batch). The
+resident part is then the runtime and the results only; reading a chunk costs
+`READ_BATCHES` batches of its tests on top of its working set. Same chunks, same keys, same
+view length: the result is that of the fit of the same tests held in memory.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 import sys
 import time
@@ -50,23 +60,23 @@ from typing import Any
 import numpy as np
 
 from .._errors import InputError
-from ..data import Batch, as_batch
+from ..data import Batch, Source, as_batch
 from ..engine import Polish, Swarm, row_keys
 from ..models import AbstractModel, get
 from ..parallel import pad_conditions, resolve_devices, take_conditions
 from ._journal import Journal, fingerprint
 from ._plan import (
-    DEFAULT_MEMORY_FRACTION,
     MIN_CHUNK_ELEMENTS,
     MIN_ROWS,
+    RUNTIME_BYTES,
     VECTOR_BYTES,
     ChunkPlan,
-    available_memory,
     condition_bytes,
-    current_rss,
+    default_budget,
     parse_memory,
     plan_chunks,
     resident_bytes,
+    results_bytes,
 )
 from ._problem import TestsProblem
 from ._result import FitResult
@@ -85,9 +95,19 @@ def _bar(enabled: bool | None, plan: ChunkPlan):
                 file=sys.stderr, position=0)
 
 
+#: Bytes of tests a streamed fit reads at a time to check them (before the plan).
+CHECK_BYTES = 256_000_000
+#: Batches' worth of memory per test that reading a chunk from its files costs (the parsed
+#: columns, the conditions, the batch on the host), on top of the chunk's working set.
+READ_BATCHES = 3
+
+
 def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
-          chunk_size: int | None) -> ChunkPlan:
-    """The chunks of a fit whose whole batch is the problem `whole`."""
+          chunk_size: int | None, *, n_conditions: int | None = None,
+          resident: int | None = None, extra_per_condition: int = 0) -> ChunkPlan:
+    """The chunks of a fit whose whole batch is the problem `whole` (a streamed fit: a
+    problem of a few of its tests, with the whole's `n_conditions`, `resident` bytes and the
+    reading's `extra_per_condition` bytes)."""
     budget = None if max_memory is None else parse_memory(max_memory)
     sw = run.swarm
     k = sw.restarts if sw is not None else 1
@@ -97,13 +117,14 @@ def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
     minimum = max(MIN_ROWS * n_dev, -(-MIN_CHUNK_ELEMENTS // (k * t_swarm)))
     if sw is not None:
         minimum = max(minimum, -(-MIN_CHUNK_ELEMENTS // (k * sw.n_particles)))
-    shape = dict(per_condition=condition_bytes(whole, run), resident=resident_bytes(whole, run),
+    shape = dict(per_condition=condition_bytes(whole, run) + extra_per_condition,
+                 resident=resident_bytes(whole, run) if resident is None else resident,
                  devices=n_dev, lanes=lanes, minimum=minimum)
+    C = whole.n_real if n_conditions is None else n_conditions
     if budget is None and chunk_size is None:
-        default = current_rss() + int(DEFAULT_MEMORY_FRACTION * available_memory())
-        return plan_chunks(whole.n_real, budget=max(default, shape["resident"]), strict=False,
+        return plan_chunks(C, budget=max(default_budget(), shape["resident"]), strict=False,
                            **shape)
-    return plan_chunks(whole.n_real, budget=budget, size=chunk_size, **shape)
+    return plan_chunks(C, budget=budget, size=chunk_size, **shape)
 
 
 def chunk_plan(model: str | AbstractModel, data: Any, *, method: str = "pso+lm",
@@ -126,7 +147,7 @@ def chunk_plan(model: str | AbstractModel, data: Any, *, method: str = "pso+lm",
 
 def fit_in_chunks(
     model: AbstractModel,
-    data: Batch,
+    data: Batch | Source,
     run: Run,
     *,
     max_memory: Any = None,
@@ -135,27 +156,43 @@ def fit_in_chunks(
     resume: bool = False,
 ) -> FitResult:
     """`mrjax.fit` in chunks (see the module docstring): `run` the settings of the fit, and
-    the chunking options `max_memory`, `chunk_size`, `journal`, `resume` of `mrjax.fit`."""
+    the chunking options `max_memory`, `chunk_size`, `journal`, `resume` of `mrjax.fit`.
+    `data`: a batch, or a `mrjax.data.Source` (streamed from its files unless it holds its
+    tests)."""
     t0 = time.perf_counter()
     if resume and journal is None:
         raise InputError("resume needs a journal directory (journal=...)")
-    # the whole batch checked once, before any work (errors and warnings name its conditions)
-    whole = problem_of(model, data, dataclasses.replace(run, devices=None))
-    C = whole.n_real
     k = run.swarm.restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
     # one stream per swarm row, split once for the whole batch (from the seed without a key)
-    keys = row_keys(int(run.seed) if run.key is None else run.key, k * C)
-    plan = _plan(whole, run, n_dev, max_memory, chunk_size)
+    key = int(run.seed) if run.key is None else run.key
+    if isinstance(data, Source) and not data.kept:
+        whole, plan, view_length, take, digest = _streamed(model, data, run, n_dev, max_memory,
+                                                           chunk_size)
+        C = data.n_conditions
+        keys = row_keys(key, k * C)
+    else:
+        if isinstance(data, Source):
+            data = data.batch()
+        # the whole batch checked once, before any work (errors and warnings name its
+        # conditions)
+        whole = problem_of(model, data, dataclasses.replace(run, devices=None))
+        C, digest = whole.n_real, ""
+        keys = row_keys(key, k * C)
+        plan = _plan(whole, run, n_dev, max_memory, chunk_size)
+        view_length = whole.view.batch.length if whole.view is not None else None
+
+        def take(rows):
+            return take_conditions(whole.source, rows)[0]
     jr = None
     if journal is not None and (resume or plan.n_chunks > 1):  # one chunk: nothing to resume
-        jr = Journal.open(journal, fingerprint(whole, run, keys), plan, resume=bool(resume))
+        fp = fingerprint(whole, run, keys) + digest
+        jr = Journal.open(journal, fp, plan, resume=bool(resume))
         plan = jr.plan
         if plan.size % n_dev:
             raise InputError(f"cannot resume: the journal's chunks of {plan.size} conditions "
                              f"do not divide over {n_dev} devices")
     done = jr.finished(whole.model) if jr is not None else {}
-    view_length = whole.view.batch.length if whole.view is not None else None
     rows_keys = keys.reshape(k, C, 2)
     parts: list[FitResult] = []
     bar = _bar(run.progress, plan)
@@ -168,8 +205,7 @@ def fit_in_chunks(
                 parts.append(done[j])
                 continue
             rows = np.arange(start, stop)
-            chunk, _ = take_conditions(whole.source, rows)
-            chunk, _, n = pad_conditions(chunk, None, plan.size)
+            chunk, _, n = pad_conditions(take(rows), None, plan.size)
             padded = np.concatenate([rows, np.full(plan.size - n, rows[-1])])
             chunk_keys = rows_keys[:, padded].reshape(k * plan.size, 2)
             chunk_run = dataclasses.replace(run, key=chunk_keys)
@@ -188,3 +224,36 @@ def fit_in_chunks(
     result = FitResult.concatenate(parts)
     timings = dict(result.timings, total=time.perf_counter() - t0)
     return dataclasses.replace(result, timings=timings)
+
+
+def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, max_memory: Any,
+              chunk_size: int | None) -> tuple[TestsProblem, ChunkPlan, int | None, Any, str]:
+    """A streamed fit's check pass (see the module docstring): `(a problem of its first tests
+    for the plan and the journal, the plan, the view length of the whole, the chunk reader,
+    the SHA-256 of every test read)`."""
+    C, T = source.n_conditions, source.length
+    per_test = max(1, source.batch_bytes(1))
+    budget = CHECK_BYTES if max_memory is None else min(CHECK_BYTES, parse_memory(max_memory) // 4)
+    group = max(1, budget // (READ_BATCHES * per_test))
+    nodev = dataclasses.replace(run, devices=None)
+    view_length, h = 0, hashlib.sha256()
+    for start in range(0, C, group):
+        batch = source.batch(np.arange(start, min(C, start + group)), length=T)
+        p = problem_of(model, batch, nodev)  # the checks of the whole, a group at a time
+        if p.view is not None:
+            view_length = max(view_length, p.view.batch.length)
+        for i in range(batch.n_conditions):  # per test: the same digest however grouped
+            h.update(batch.labels[i].encode())
+            for name in ("t", "x", "xdot", "force", "dt", "command", "mask", "current",
+                         "frequency", "amplitude", "command_kind", "estimated"):
+                h.update(np.asarray(getattr(batch, name)[i]).tobytes())
+    view = view_length or None
+    first = source.batch(np.arange(min(C, MIN_ROWS)), length=T, warn=False)
+    probe = problem_of(model, first, nodev, view_length=view, checked=True)
+    resident = RUNTIME_BYTES + results_bytes(probe.model.n_params, run, C)
+    plan = _plan(probe, run, n_dev, max_memory, chunk_size, n_conditions=C, resident=resident,
+                 extra_per_condition=READ_BATCHES * per_test)
+
+    def take(rows):
+        return source.batch(rows, length=T, warn=False)
+    return probe, plan, view, take, h.hexdigest()

@@ -9,7 +9,7 @@ from typing import Any
 
 from jaxtyping import ArrayLike
 
-from ..data import Batch, Condition, as_batch
+from ..data import Batch, Condition, Source, as_batch
 from ..engine import Polish, Swarm
 from ..models import AbstractModel, get
 from ..pso import PSOParams
@@ -20,7 +20,7 @@ from ._run import make_run
 
 def fit(
     model: str | AbstractModel,
-    data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
+    data: Batch | Condition | Sequence[Condition] | str | os.PathLike | Source,
     *,
     method: str = "pso+lm",
     swarm: Swarm | None = None,
@@ -57,7 +57,9 @@ def fit(
     **Arguments:**
 
     - `model`: a model name (`"kwok"`, `"bouc_wen"`, ...) or object.
-    - `data`: a `mrjax.data.Batch`, condition(s), or file/directory path(s).
+    - `data`: a `mrjax.data.Batch`, condition(s), file/directory path(s), or a
+        `mrjax.data.Source` (tests indexed in their files: read chunk by chunk when it does
+        not hold them, so that `max_memory` bounds the whole process; same result).
     - `method`: `"pso+lm"` (swarm, then the Levenberg-Marquardt polish; default), `"pso"`
         (swarm only), or `"lm"` (polish alone from the model's default start: it shows why the
         swarm is needed). Where `bounds` exclude the default start, it is clipped onto them.
@@ -128,5 +130,6 @@ def fit(
                    pso_params=pso_params, restarts=restarts, swarm_view=swarm_view,
                    swarm_dtype=swarm_dtype, polish_steps=polish_steps, polish_tol=polish_tol,
                    uncertainty=uncertainty)
-    return fit_in_chunks(get(model), as_batch(data), run, max_memory=max_memory,
+    data = data if isinstance(data, Source) else as_batch(data)
+    return fit_in_chunks(get(model), data, run, max_memory=max_memory,
                          chunk_size=chunk_size, journal=journal, resume=resume)

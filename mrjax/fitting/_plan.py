@@ -123,6 +123,12 @@ def current_rss() -> int:
         return 0
 
 
+def default_budget() -> int:
+    """The memory budget of a fit given none [bytes]: what the process holds now plus
+    `DEFAULT_MEMORY_FRACTION` of the memory available (see :func:`available_memory`)."""
+    return current_rss() + int(DEFAULT_MEMORY_FRACTION * available_memory())
+
+
 def condition_bytes(p: TestsProblem, run: Run) -> int:
     """Estimated working set of one condition of a chunk [bytes]:
 
@@ -153,10 +159,15 @@ def resident_bytes(p: TestsProblem, run: Run) -> int:
     the whole batch (and the swarm's view of it) and the results of every condition."""
     arrays = jax.tree.leaves(p.source) + ([] if p.view is None else jax.tree.leaves(p.view.batch))
     data = sum(int(np.asarray(a).nbytes) for a in arrays if hasattr(a, "shape"))
-    P = p.model.n_params
+    return int(RUNTIME_BYTES + data + results_bytes(p.model.n_params, run, p.n_real))
+
+
+def results_bytes(n_params: int, run: Run, n_conditions: int) -> int:
+    """Memory of the results of `n_conditions` conditions [bytes]: parameters, errors,
+    intervals, correlations and the swarm's history of each."""
+    P = n_params
     G = run.swarm.generation_cap + 1 if run.swarm is not None else 0
-    results = p.n_real * 8 * (G + 4 * P + 2 * P * P + 16)
-    return int(RUNTIME_BYTES + data + results)
+    return int(n_conditions * 8 * (G + 4 * P + 2 * P * P + 16))
 
 
 @dataclasses.dataclass(frozen=True)
