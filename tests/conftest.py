@@ -1,6 +1,7 @@
 """Shared test fixtures: float64, CPU, and the optional UTFSM data directory."""
 
 import os
+import warnings
 from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -25,6 +26,20 @@ def utfsm_dir() -> Path | None:
         if c.is_dir() and any(c.glob("*A.txt")):
             return c.resolve()
     return None
+
+
+@pytest.fixture(autouse=True)
+def _release_compiled_code():
+    """The suite compiles thousands of programs in one process; XLA:CPU maps each one's code
+    into memory, and past Linux's `vm.max_map_count` the next compilation crashes the process.
+    Empty JAX's caches before a test when the process holds more than 40 % of the limit (the
+    engine does so at 60 %, see `mrjax._runtime`)."""
+    from mrjax._runtime import release_code
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        release_code(share=0.4)
+    yield
 
 
 @pytest.fixture(scope="session")

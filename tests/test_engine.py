@@ -120,3 +120,20 @@ def test_every_kind_runs_through_the_one_engine(grid, monkeypatch):
     mrjax.generalize.identify(sub, "kwok", lag=None, seed=0, max_generations=20)
     assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]
     assert set(PROBLEM_KINDS) == {"TestsProblem", "LawsProblem"}
+
+
+def test_compiled_code_is_released_near_the_map_limit(grid):
+    """A long session keeps every compiled program, each in memory maps of its own; past
+    Linux's `vm.max_map_count` the next compilation crashes the process. `release_code` empties
+    JAX's caches above a share of the limit (the engine calls it before each solve), and leaves
+    them alone below it."""
+    from mrjax._runtime import map_count, release_code
+
+    if map_count() is None:
+        pytest.skip("no /proc/self/maps on this system")
+    mrjax.fit("kwok", grid.subset([0, 3]), seed=0, n_particles=17, uncertainty=False)
+    before = map_count()
+    assert not release_code(share=1.0) and map_count() >= before - 50
+    with pytest.warns(RuntimeWarning, match="caches were emptied"):
+        assert release_code(share=0.0)
+    assert map_count() < before - 100  # the programs' code maps are gone

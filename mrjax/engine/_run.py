@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from .._runtime import release_code
 from ..refine import solve_box, status_name
 from ._problem import AbstractProblem, Outcome, StageOutcome
 from ._settings import Polish, Swarm
@@ -56,6 +57,7 @@ def solve(
     **Returns:** an :class:`Outcome` (the caller assembles its result from it), with
     `timings` [s] of `swarm`, `start`, `polish_view`, `polish`, `uncertainty`.
     """
+    release_code()  # a long session's compiled programs within the OS's limit on memory maps
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     sw = None
