@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     fit_options = dict(method=args.method, restarts=args.restarts, n_particles=args.particles,
                        max_generations=args.max_generations, polish_steps=args.polish_steps,
                        transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None,
-                       max_memory=args.memory, devices=args.devices)
+                       max_memory=args.memory, devices=args.devices,
+                       retry=not args.no_retry)
     spec = data_spec(args)
     if args.validate:
         batch, validate = load_batches([args.files, args.validate], spec)
@@ -111,8 +112,13 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    "two-step,joint (default) or none")
     p.add_argument("--method", choices=("pso", "pso+lm", "lm"), default="pso+lm",
                    help="per-test fit: swarm, swarm then polish (default), or polish alone")
-    p.add_argument("--restarts", type=positive_int, default=1, metavar="K",
-                   help="independent swarms per test and model, best one polished (default 1)")
+    p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
+                   help="independent swarms per test, best one polished (default: 1, and up "
+                   "to 4 for an ODE model on fewer than 4 tests)")
+    p.add_argument("--no-retry", action="store_true",
+                   help="do not polish each test again from its neighbours' optima (the "
+                   "default retry finds the optima one swarm misses and warns where the two "
+                   "results disagree)")
     p.add_argument("--max-generations", type=positive_int, default=200, metavar="N",
                    help="cap on swarm generations with the statistical stop (default 200)")
     p.add_argument("--particles", type=positive_int, default=50, metavar="N",

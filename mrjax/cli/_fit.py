@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
         swarm_dtype=args.swarm_dtype, restarts=args.restarts, devices=args.devices,
         max_memory=args.memory, chunk_size=args.chunk_size, journal=journal,
-        resume=args.resume,
+        resume=args.resume, retry=not args.no_retry,
     )
     gm = None
     if args.generalize:
@@ -246,8 +246,13 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm", choices=("separable", "full"), default="separable",
                    help="separable: variable projection over the linear parameters (default); "
                    "full: the paper's swarm over all parameters")
-    p.add_argument("--restarts", type=positive_int, default=1, metavar="K",
-                   help="independent swarms per test, best one polished (default 1)")
+    p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
+                   help="independent swarms per test, best one polished (default: 1, and up "
+                   "to 4 for an ODE model on fewer than 4 tests)")
+    p.add_argument("--no-retry", action="store_true",
+                   help="do not polish each test again from its neighbours' optima (the "
+                   "default retry finds the optima one swarm misses and warns where the two "
+                   "results disagree)")
     p.add_argument("--swarm-dtype", choices=("float64", "float32"), default=None,
                    help="precision of the swarm's search (default float64; float32 is about "
                    "twice as fast; the polish and the results stay float64)")

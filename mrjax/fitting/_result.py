@@ -18,6 +18,7 @@ from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model
+from ._retry import spread_warnings
 
 
 def _finite_median(a: np.ndarray) -> float:
@@ -53,6 +54,10 @@ class FitResult:
     - `estimated` (C, 3) bool: whether each condition's `xdot`, `frequency`, `amplitude` (the
         columns of `mrjax.data.ESTIMATED_FIELDS`) were estimated rather than read, as
         `Batch.estimated`; `None` when not known.
+    - `starts_rms` (C, S) [N]: the RMS on the full record of each polished start (the swarm's,
+        then the retry's from a neighbour's optimum, `mrjax.Polish(retry=True)`); `rms` is
+        their minimum; a spread above `mrjax.fitting.SPREAD_MARGIN` is warned about (a
+        possible local optimum). None without a retry.
     """
 
     model: AbstractModel
@@ -79,6 +84,7 @@ class FitResult:
     identifiable: np.ndarray
     timings: dict[str, float]
     estimated: np.ndarray | None = None
+    starts_rms: np.ndarray | None = None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -208,7 +214,8 @@ class FitResult:
         med, medn = _finite_median(self.rms), _finite_median(self.nrmse)
         return (format_table(rows, head, floatfmt=fmt)
                 + f"\n{self.model.name} ({self.method}, {self.swarm_mode}): {self.n_conditions} "
-                f"conditions, median RMS {med:.2f} N, median NRMSE {100 * medn:.2f} %")
+                f"conditions, median RMS {med:.2f} N, median NRMSE {100 * medn:.2f} %"
+                + "".join(f"\nwarning: {w['message']}" for w in spread_warnings(self)))
 
     def __repr__(self) -> str:
         return (f"FitResult(model={self.model.name!r}, method={self.method!r}, "
@@ -242,6 +249,7 @@ class FitResult:
                 "polish_steps": int(self.polish_steps[i]),
                 "identifiable": dict(zip(names, self.identifiable[i])),
                 "estimated": self._estimated_names(i),
+                "starts_rms_N": None if self.starts_rms is None else list(self.starts_rms[i]),
             })
         doc = {
             "model": self.model.name,
@@ -252,6 +260,7 @@ class FitResult:
             "units": list(self.model.units),
             "mrjax_version": __version__,
             "conditions": conds,
+            "warnings": spread_warnings(self),
         }
         if generalized is not None:
             doc["generalized"] = generalized.to_dict()
