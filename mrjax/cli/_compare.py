@@ -113,8 +113,8 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("pso", "pso+lm", "lm"), default="pso+lm",
                    help="per-test fit: swarm, swarm then polish (default), or polish alone")
     p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
-                   help="independent swarms per test, best one polished (default: 1, and up "
-                   "to 4 for an ODE model on fewer than 4 tests)")
+                   help="independent swarms per test, best one polished (default 1; 2 for "
+                   "an ODE model on a single test)")
     p.add_argument("--no-retry", action="store_true",
                    help="do not polish each test again from its neighbours' optima (the "
                    "default retry finds the optima one swarm misses and warns where the two "

@@ -31,8 +31,8 @@ class Swarm(eqx.Module):
     - `restarts`: independent swarms per unit (condition, or the whole data of a joint fit),
         one compiled program; the best is polished. None (default): the problem's choice
         (per test: `mrjax.fitting.default_restarts`, one swarm per test on a batch of tests
-        whose optima seed each other's retry, up to 4 for a dynamic model on few tests; 1
-        for joint laws).
+        whose optima seed each other's retry, two for a dynamic model on one test; 1 for joint
+        laws).
     - `mode`: `"separable"` (variable projection over the parameters the force is linear in;
         default) or `"full"` (the paper's swarm over every parameter). Joint laws always
         solve their linear laws by least squares.

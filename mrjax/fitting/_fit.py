@@ -63,9 +63,9 @@ def fit(
         (swarm only), or `"lm"` (polish alone from the model's default start: it shows why the
         swarm is needed). Where `bounds` exclude the default start, it is clipped onto them.
     - `swarm`: a :class:`mrjax.Swarm` (default `Swarm()`: 50 particles, at most 200
-        generations with the statistical stop, one swarm per test (up to 4 for an ODE model
-        on fewer than 4 tests, `mrjax.fitting.default_restarts`), separable, a view of the
-        records for the ODE models).
+        generations with the statistical stop, one swarm per test (two for an ODE model on a
+        single test, `mrjax.fitting.default_restarts`), separable, a view of the records for
+        the ODE models).
     - `polish`: a :class:`mrjax.Polish` (default `Polish()`: at most 200 steps, tol 1e-6,
         std-errors, the retry from the neighbours' optima).
     - `key`: JAX PRNG key; default `jax.random.key(seed)`. Same key, same result.

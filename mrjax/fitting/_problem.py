@@ -38,17 +38,17 @@ AUTO_PAGE = 8
 
 #: `restarts=None` of a per-test fit: a dynamic model's swarms per test are this many over
 #: the whole batch, at least one per test (see :func:`default_restarts`).
-AUTO_SWARMS = 4
+AUTO_SWARMS = 2
 
 
 def default_restarts(model: AbstractModel, n_conditions: int) -> int:
     """Swarms per test when `mrjax.Swarm(restarts=None)` (the default of `mrjax.fit`, the CLI
     and `mrjax.compare`): 1 for a static model; for a dynamic model `ceil(AUTO_SWARMS / C)`
-    (4 for one test, 2 for two or three, 1 from four tests on), since on a batch the tests'
-    optima seed each other's retry (`mrjax.Polish(retry=True)`, see
-    `mrjax.fitting.retry_starts`), which finds the optima that one swarm per test misses (on
-    the 30 UTFSM tests: every missed modified Bouc-Wen test of seeds 0-4) at a fraction of the
-    cost of a second swarm per test."""
+    (2 for one test, 1 from two tests on): on a batch the tests' optima seed each other's
+    retry (`mrjax.Polish(retry=True)`, see `mrjax.fitting.retry_starts`), which finds the
+    optima that one swarm per test misses (on the 30 UTFSM tests: every missed modified
+    Bouc-Wen test of seeds 0-4, where two swarms per test still missed one) at a fraction of
+    the cost of a second swarm per test; a lone test has no neighbour and gets two swarms."""
     if not model.dynamic:
         return 1
     return max(1, -(-AUTO_SWARMS // max(int(n_conditions), 1)))

@@ -53,8 +53,8 @@ def neighbours(current: np.ndarray, frequency: np.ndarray, amplitude: np.ndarray
     """The donors of every test: `(C, min(k, C - 1))` indices of the nearest other tests.
 
     The distance is `CURRENT_WEIGHT` x |current difference| + |log frequency difference| +
-    |log amplitude difference|, each over its range in the batch (a feature unknown for
-    either test adds nothing); ties go to the earlier test.
+    |log amplitude difference|, each over its range in the batch (a feature unknown for both
+    tests adds nothing, for one of them its whole range); ties go to the earlier test.
 
     **Arguments:** `current` [A], `frequency` [Hz], `amplitude` [m], each (C,) (NaN where
     unknown); `k` donors per test.
@@ -64,7 +64,11 @@ def neighbours(current: np.ndarray, frequency: np.ndarray, amplitude: np.ndarray
     for f, w in ((_feature(current, False), CURRENT_WEIGHT), (_feature(frequency, True), 1.0),
                  (_feature(amplitude, True), 1.0)):
         diff = np.abs(f[:, None] - f[None, :])
-        d += w * np.where(np.isfinite(diff), diff, 0.0)
+        known = np.isfinite(f)
+        # unknown for both: no difference; for one of the two: the largest
+        diff = np.where(known[:, None] & known[None, :], diff,
+                        np.where(known[:, None] | known[None, :], 1.0, 0.0))
+        d += w * diff
     np.fill_diagonal(d, np.inf)
     m = min(int(k), C - 1)
     return np.argsort(d, axis=1, kind="stable")[:, :m]

@@ -23,7 +23,7 @@ AUTO_FORMS: tuple[str, ...] = ("poly0", "poly1", "exp1", "poly2", "sat")
 class LawForms:
     """The form of every parameter's law: `kinds` (`"poly"`, `"exp"`, `"sat"`), `degrees`,
     `scales` (the saturation command of a `"sat"` law, in the command unit; 1 elsewhere) per
-    parameter, and for laws chosen by the data `criteria`: parameter name -> {form: AICc}
+    parameter, and for laws chosen by the data `criteria`: parameter name -> {form: BIC}
     of every candidate (`"poly2"`, `"sat(0.5)"`, ...; inf where not applicable)."""
 
     kinds: tuple[str, ...]
@@ -42,55 +42,55 @@ class LawForms:
         return f"sat({self.scales[p]:g})" if k == "sat" else f"{k}{self.degrees[p]}"
 
 
-def _fit(kind: str, degree: int, scale: float, i: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients of a law to values `y` at currents `i` (an `"exp"` law to
-    their logarithm)."""
+def _fit(kind: str, degree: int, scale: float, i: np.ndarray, y: np.ndarray,
+         w: np.ndarray) -> np.ndarray:
+    """Coefficients of a law fitted to values `y` at currents `i`: weighted least squares with
+    weights `w` on the residuals (an `"exp"` law: least squares of the logarithm)."""
     X = vander(i, degree + 1, kind, scale)
-    t = np.log(y) if kind == "exp" else y
-    return np.linalg.lstsq(X, t, rcond=None)[0]
+    if kind == "exp":
+        return np.linalg.lstsq(X, np.log(y), rcond=None)[0]
+    return np.linalg.lstsq(X * w[:, None], y * w, rcond=None)[0]
 
 
-def _aicc(rss: float, n: int, k: int) -> float:
-    """The corrected Akaike criterion of a Gaussian fit with `k` unknowns to `n` values."""
+def _bic(rss: float, n: int, k: int) -> float:
+    """The Bayesian information criterion of a Gaussian fit with `k` unknowns to `n` values
+    (`inf` without a residual degree of freedom)."""
     if not (math.isfinite(rss) and rss > 0) or n - k - 1 <= 0:
         return math.inf
-    return n * math.log(rss / n) + 2 * k + 2 * k * (k + 1) / (n - k - 1)
+    return n * math.log(rss / n) + k * math.log(n)
 
 
 def candidates(i: np.ndarray, y: np.ndarray, n_currents: int, span: float
                ) -> dict[str, tuple[float, str, int, float]]:
     """Every candidate law of one parameter with per-test values `y` at currents `i`:
-    form -> `(AICc, kind, degree, scale)`.
+    form -> `(BIC, kind, degree, scale)`.
 
-    Each candidate is fitted by least squares in the space it is linear in (a `"sat"` law for
-    each scale of `SAT_SCALES` x `span`, the best kept, its scale counted as an unknown) and
-    scored on the same residuals: relative (of the logarithm) where every value is positive,
-    else absolute. A form needs at least as many distinct currents as unknowns; `"exp"`
-    positive values.
+    Each candidate is fitted by least squares (a `"sat"` law for each scale of `SAT_SCALES` x
+    `span`, the best kept, its scale counted as an unknown) and scored on the residuals it was
+    fitted to: relative, $(y - p(i))/y$, where every value is positive (an `"exp"` law is
+    fitted to the logarithm, whose residual is the relative one to first order), else
+    absolute. A form needs at least as many distinct currents as unknowns; `"exp"` positive
+    values.
     """
     positive = bool(np.all(y > 0))
+    w = 1.0 / y if positive else np.ones_like(y)
     n = y.size
     out: dict[str, tuple[float, str, int, float]] = {}
 
     def score(kind, degree, scale):
-        pred = law_value(kind, scale, _fit(kind, degree, scale, i, y), i, np)
-        if positive:
-            if not np.all(pred > 0):
-                return math.inf
-            r = np.log(y) - np.log(pred)
-        else:
-            r = y - pred
-        return float(np.sum(r * r))
+        pred = law_value(kind, scale, _fit(kind, degree, scale, i, y, w), i, np)
+        r = (y - pred) * w
+        return float(np.sum(r * r)) if np.all(np.isfinite(r)) else math.inf
 
     for d in range(3):
         if d + 1 <= n_currents:
-            out[f"poly{d}"] = (_aicc(score("poly", d, 1.0), n, d + 1), "poly", d, 1.0)
+            out[f"poly{d}"] = (_bic(score("poly", d, 1.0), n, d + 1), "poly", d, 1.0)
     if positive and n_currents >= 2:
-        out["exp1"] = (_aicc(score("exp", 1, 1.0), n, 2), "exp", 1, 1.0)
+        out["exp1"] = (_bic(score("exp", 1, 1.0), n, 2), "exp", 1, 1.0)
     if n_currents >= 3 and span > 0:  # a, b and the scale
         best = min(((score("sat", 1, f * span), f * span) for f in SAT_SCALES),
                    key=lambda t: t[0])
-        out[f"sat({best[1]:g})"] = (_aicc(best[0], n, 3), "sat", 1, best[1])
+        out[f"sat({best[1]:g})"] = (_bic(best[0], n, 3), "sat", 1, best[1])
     return out
 
 
@@ -99,7 +99,7 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
                  n_currents: float, unit: str = "A") -> LawForms:
     """The law forms of a generalization.
 
-    - `laws="auto"`: per parameter the form with the lowest AICc (:func:`candidates`) of the
+    - `laws="auto"`: per parameter the form with the lowest BIC (:func:`candidates`) of the
         per-test values `theta` (C, P) (z-scale normalised) at their currents `current` (C,),
         among polynomial degree 0-2, exponential ($\\exp(a + b\\,i)$) and saturating
         ($a + b(1 - e^{-i/s})$); the earlier of `AUTO_FORMS` among equals (within 1e-9).
@@ -154,9 +154,9 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
 
 def forms_info(forms: LawForms, names: tuple[str, ...]) -> dict[str, Any]:
     """The `GeneralizedModel.info` entries of the law forms: `law_forms` (name -> form) and,
-    for forms chosen by the data, `law_criteria` (name -> {form: AICc})."""
+    for forms chosen by the data, `law_criteria` (name -> {form: BIC})."""
     out: dict[str, Any] = {"law_forms": {n: forms.form(p) for p, n in enumerate(names)}}
     if forms.criteria is not None:
-        out["law_choice"] = "auto (lowest AICc of the per-test values)"
+        out["law_choice"] = "auto (lowest BIC of the per-test values)"
         out["law_criteria"] = forms.criteria
     return out

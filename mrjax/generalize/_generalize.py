@@ -220,7 +220,7 @@ def generalize(
         :func:`default_degrees`.
     - `laws`: parameter name -> `"poly"` (default), `"exp"` ($\\exp(a + b\\,i)$ at degree 1)
         or `"sat"` ($a + b(1 - e^{-i/s})$, the scale s fitted to the per-test values); or
-        `"auto"`: every form chosen by the data, per parameter the lowest AICc of its per-test
+        `"auto"`: every form chosen by the data, per parameter the lowest BIC of its per-test
         values among polynomial degree 0-2, exponential and saturating (`choose_forms`; a
         parameter named in `degrees` keeps that polynomial degree). The forms are in
         `info["law_forms"]` (and the criteria in `info["law_criteria"]`).

@@ -57,7 +57,7 @@ def horner(coefficients, i, xp):
 
 
 def law_basis(kind: str, scale: float, i, size: int, xp) -> list:
-    """The functions of the command `i` a law is linear in (in its log for `"exp"`): the powers
+    r"""The functions of the command `i` a law is linear in (in its log for `"exp"`): the powers
     $i^0 \dots i^{size-1}$, or for `"sat"` $1$ and $1 - e^{-i/s}$ (`xp` = np or jnp)."""
     if kind == "sat":
         return [xp.ones_like(i), 1.0 - xp.exp(-i / scale)]

@@ -405,7 +405,7 @@ class GeneralizedModel:
         lines.append(f"{self.model.name} generalized ({self.method}), {var} in [{lo:g}, {hi:g}] "
                      f"{self.command_unit}: total RMS {self.total_rms:.4g} N")
         if "law_criteria" in self.info:
-            lines.append("law forms chosen by the data (lowest AICc of the per-test values): "
+            lines.append("law forms chosen by the data (lowest BIC of the per-test values): "
                          + ", ".join(f"{n} {self.laws[n].form}" for n in self.param_names))
         if any(any(v) for v in self.loosely_determined().values()):
             lines.append("* loosely determined: std-error above 2.5 % of the coefficient")
