@@ -13,7 +13,7 @@ from .._io import atomic_output, check_writable, json_bytes
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import fit_mask
 from ..fitting import fit
-from ..generalize import GeneralizedModel, generalize, identify
+from ..generalize import LAW_KINDS, GeneralizedModel, generalize, identify
 from ..models import get
 from ._common import (
     DEFAULT_OUT,
@@ -66,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
+    if args.laws is not None and not args.generalize:
+        raise InputError("--laws sets the form of the laws of --generalize: give both")
     bounds = parse_bounds(args.bounds, model)
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
@@ -104,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         say(f"fitting current-dependent laws ({args.generalize})...")
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
         gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
-                        degrees=args.degrees)
+                        degrees=args.degrees, laws=args.laws)
     files = {"fit.json": result.to_json(generalized=gm).encode(),
              "fit.csv": result.to_csv().encode()}
     if not args.no_plots:
@@ -172,6 +174,23 @@ def parse_degrees(text: str) -> dict[str, int]:
     return out
 
 
+def parse_laws(text: str) -> str | dict[str, str]:
+    """`--laws`: `auto` (every law's form chosen by the data) or `NAME=KIND,...` with KIND one
+    of `poly`, `exp`, `sat`."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    out: dict[str, str] = {}
+    for item in text.split(","):
+        name, sep, kind = item.partition("=")
+        kind = kind.strip().lower()
+        if not sep or not name.strip() or kind not in LAW_KINDS:
+            raise argparse.ArgumentTypeError(
+                f"expected 'auto' or NAME=KIND,... with KIND one of {', '.join(LAW_KINDS)}, "
+                f"got {item!r}")
+        out[name.strip()] = kind
+    return out
+
+
 def laws_csv(gm: GeneralizedModel) -> str:
     """The laws as CSV: one row per coefficient (parameter, power of the command, value,
     std-error, unit of the parameter, command unit), then the lag rate."""
@@ -198,7 +217,8 @@ def _run_identify(args, model, bounds, batch, out) -> int:
                          "and polish: leave --method and --swarm at their defaults")
     say(f"identifying {model.name} as laws of the command from {C} record"
         f"{'s' if C != 1 else ''} (lag: {args.lag})...")
-    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, bounds=bounds, transient=args.transient,
+    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, laws=args.laws, bounds=bounds,
+                  transient=args.transient,
                   seed=args.seed, n_particles=args.particles,
                   max_generations=args.generations or args.max_generations or 200,
                   restarts=args.restarts)
@@ -276,6 +296,12 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="polynomial degree of the named parameters' laws of the current or "
                    "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
                    "linear in a command voltage)")
+    p.add_argument("--laws", type=parse_laws, metavar="auto|NAME=KIND,...",
+                   help="form of the laws: 'auto' chooses each parameter's among polynomial "
+                   "degree 0-2, exponential and saturating by the lowest BIC of the per-test "
+                   "values (the choice is in the summary and fit.json; --degrees still fixes "
+                   "the named ones); or NAME=KIND with KIND poly, exp or sat (default: poly of "
+                   "the model's default degrees, see --degrees)")
     p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")

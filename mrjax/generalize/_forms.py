@@ -17,6 +17,8 @@ from ._two_step import law_spec
 
 #: The candidate forms of `laws="auto"`, in the order of preference among equals.
 AUTO_FORMS: tuple[str, ...] = ("poly0", "poly1", "exp1", "poly2", "sat")
+#: Relative residual of a law below which the per-test values count as fitted exactly.
+RESOLUTION = 1e-6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,12 +77,15 @@ def candidates(i: np.ndarray, y: np.ndarray, n_currents: int, span: float
     positive = bool(np.all(y > 0))
     w = 1.0 / y if positive else np.ones_like(y)
     n = y.size
+    # residuals below RESOLUTION (relative) are rounding: a constant (e.g. a parameter on its
+    # bound in every test) is not "explained" better by a curve through its last bits
+    floor = n * (RESOLUTION * (1.0 if positive else float(np.max(np.abs(y)) or 1.0))) ** 2
     out: dict[str, tuple[float, str, int, float]] = {}
 
     def score(kind, degree, scale):
         pred = law_value(kind, scale, _fit(kind, degree, scale, i, y, w), i, np)
         r = (y - pred) * w
-        return float(np.sum(r * r)) if np.all(np.isfinite(r)) else math.inf
+        return float(np.sum(r * r)) + floor if np.all(np.isfinite(r)) else math.inf
 
     for d in range(3):
         if d + 1 <= n_currents:
