@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -55,16 +56,20 @@ def run_cli(args: list[str], out: Path) -> dict:
     cmd = ["nice", "-n", "10", sys.executable, "-m", "mrjax.cli", *args, "--out", str(out),
            "--no-plots"]
     load0 = _load()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     p = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(args)} failed:\n{p.stderr[-3000:]}")
     doc = {}
     for name in ("fit.json", "predict.json"):
         if (out / name).exists():
             doc = json.loads((out / name).read_text())
-    return {"args": args, "wall_s": wall, "load_before": load0, "load_after": _load(),
+    return {"args": args, "wall_s": wall, "cpu_s": cpu, "load_before": load0,
+            "load_after": _load(),
             "doc": doc, "stdout_tail": p.stdout[-2500:]}
 
 
@@ -78,7 +83,7 @@ def summary(r: dict) -> dict:
     nr = per_test(r["doc"])
     v = np.array(list(nr.values()))
     worst = max(nr, key=nr.get)
-    return {"args": r["args"], "wall_s": round(r["wall_s"], 1),
+    return {"args": r["args"], "wall_s": round(r["wall_s"], 1), "cpu_s": round(r["cpu_s"], 1),
             "load": f"{r['load_before']} -> {r['load_after']}",
             "median_pct": float(np.median(v)), "worst_pct": float(v.max()), "worst_test": worst,
             "per_test_pct": nr,
@@ -114,7 +119,8 @@ def main(argv=None) -> int:
         runs[key] = summary(r)
         s = runs[key]
         print(f"    {s['median_pct']:.2f} % median, worst {s['worst_pct']:.2f} % "
-              f"({s['worst_test']}), {s['wall_s']:.0f} s, load {s['load']}", file=sys.stderr,
+              f"({s['worst_test']}), {s['wall_s']:.0f} s wall, {s['cpu_s']:.0f} s CPU, load "
+              f"{s['load']}", file=sys.stderr,
               flush=True)
         JSON.write_text(json.dumps(out, indent=1))
 
@@ -177,14 +183,16 @@ def render(out: dict) -> str:
     runs = out["runs"]
     lines = ["# Right by default: the UTFSM tests with no tuning flags", "",
              f"Machine: {out['machine']}; the shared 2-core CPU, other engineers' jobs running "
-             "(load average before -> after each run in the tables). Every run is the `mrjax` "
+             "(load average before -> after each run in the tables; CPU = user + system time "
+             "of the process, less sensitive to the load than the wall time). Every run is the "
+             "`mrjax` "
              "command in a fresh process, cold (`MRJAX_CACHE_DIR=off`), `--no-plots`, `nice -n "
              "10`. New: the defaults of this release (one swarm per test, then every test "
              "polished again from the best of its neighbours' optima). Old: `--restarts 1 "
              "--no-retry` (the previous defaults). Best known: per test, the lowest NRMSE of "
              "every run below (seeds 0-4 old and new, `--restarts 4`).", "",
              "| model | defaults | seed | median NRMSE | worst test | above best known "
-             "(max) | wall | load |", "|---|---|---:|---:|---|---:|---:|---|"]
+             "(max) | wall | CPU | load |", "|---|---|---:|---:|---|---:|---:|---:|---|"]
     models = sorted({k.split("/")[0] for k in runs if not k.startswith("holdout")})
     for m in models:
         best = _best_known(runs, m)
@@ -194,7 +202,8 @@ def render(out: dict) -> str:
             _, kind, seed = (k.split("/") + [""])[:3]
             lines.append(f"| {m} | {kind} | {seed.replace('seed', '')} | {r['median_pct']:.2f} % "
                          f"| {r['worst_pct']:.2f} % ({r['worst_test']}) | {gap:+.2f} pts "
-                         f"| {r['wall_s']:.0f} s | {r['load']} |")
+                         f"| {r['wall_s']:.0f} s | {r.get('cpu_s', float('nan')):.0f} s "
+                         f"| {r['load']} |")
     ho = {k: r for k, r in runs.items() if k.startswith("holdout/")}
     if ho:
         lines += ["", "Held-out currents: laws from the 18 tests at 0, 0.5 and 1 A (`mrjax fit "

@@ -185,7 +185,7 @@ def test_saturating_law_recovered_jointly():
             conds.append(c)
     batch = mrjax.data.make_batch(conds)
     res = mrjax.fit(model, batch, seed=0, max_generations=40)
-    gm = generalize(res, batch, method="joint", laws="auto", seed=0, max_generations=20)
+    gm = generalize(res, batch, method="joint", seed=0, max_generations=20)  # auto: default
     assert gm.laws["alpha"].kind == "sat" and gm.laws["alpha"].scale == pytest.approx(s_true)
     np.testing.assert_allclose(gm.laws["alpha"].coefficients, (100.0, 900.0), rtol=0.03)
     assert gm.info["law_forms"]["alpha"] == "sat(0.4)"
@@ -195,6 +195,9 @@ def test_saturating_law_recovered_jointly():
     back = GeneralizedModel.from_dict(doc)
     u = np.linspace(0, 2, 7)
     np.testing.assert_allclose(np.asarray(back.params_at(u)), np.asarray(gm.params_at(u)))
+    fixed = generalize(res, batch, laws="fixed")  # the model's default degrees
+    assert fixed.laws["alpha"].form == "poly2" and fixed.info["law_forms"]["alpha"] == "poly2"
+    assert json.loads(fixed.to_json())["law_choice"] == "given"
     with pytest.raises(mrjax.InputError, match="scale"):
         Law("sat", (1.0, 2.0))
     with pytest.raises(mrjax.InputError, match="2 coefficients"):

@@ -175,17 +175,18 @@ def parse_degrees(text: str) -> dict[str, int]:
 
 
 def parse_laws(text: str) -> str | dict[str, str]:
-    """`--laws`: `auto` (every law's form chosen by the data) or `NAME=KIND,...` with KIND one
-    of `poly`, `exp`, `sat`."""
-    if text.strip().lower() == "auto":
-        return "auto"
+    """`--laws`: `auto` (every law's form chosen by the data), `fixed` (the model's default
+    degrees) or `NAME=KIND,...` with KIND one of `poly`, `exp`, `sat`."""
+    if text.strip().lower() in ("auto", "fixed"):
+        return text.strip().lower()
     out: dict[str, str] = {}
     for item in text.split(","):
         name, sep, kind = item.partition("=")
         kind = kind.strip().lower()
         if not sep or not name.strip() or kind not in LAW_KINDS:
             raise argparse.ArgumentTypeError(
-                f"expected 'auto' or NAME=KIND,... with KIND one of {', '.join(LAW_KINDS)}, "
+                f"expected 'auto', 'fixed' or NAME=KIND,... with KIND one of "
+                f"{', '.join(LAW_KINDS)}, "
                 f"got {item!r}")
         out[name.strip()] = kind
     return out
@@ -296,12 +297,13 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
                    help="polynomial degree of the named parameters' laws of the current or "
                    "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
                    "linear in a command voltage)")
-    p.add_argument("--laws", type=parse_laws, metavar="auto|NAME=KIND,...",
-                   help="form of the laws: 'auto' chooses each parameter's among polynomial "
-                   "degree 0-2, exponential and saturating by the lowest BIC of the per-test "
-                   "values (the choice is in the summary and fit.json; --degrees still fixes "
-                   "the named ones); or NAME=KIND with KIND poly, exp or sat (default: poly of "
-                   "the model's default degrees, see --degrees)")
+    p.add_argument("--laws", type=parse_laws, metavar="auto|fixed|NAME=KIND,...",
+                   help="form of the laws of --generalize: 'auto' (default for laws of the "
+                   "current) chooses each parameter's among polynomial degree 0-2, "
+                   "exponential and saturating by the lowest BIC of the per-test values (shown "
+                   "in the summary and fit.json; --degrees fixes the named ones); 'fixed': the "
+                   "model's default degrees (default for a time-varying command); NAME=KIND "
+                   "with KIND poly, exp or sat, the others fixed")
     p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")

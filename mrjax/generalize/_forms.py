@@ -109,9 +109,10 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
         among polynomial degree 0-2, exponential ($\\exp(a + b\\,i)$) and saturating
         ($a + b(1 - e^{-i/s})$); the earlier of `AUTO_FORMS` among equals (within 1e-9).
         Parameters named in `degrees` keep a polynomial of that degree.
-    - Otherwise the user's `degrees` and `laws` (a mapping) on the model's defaults
-        (`law_spec`); a `"sat"` law's scale is chosen by least squares on the per-test values
-        (the scale of `SAT_SCALES` x the current range with the lowest residual).
+    - `laws="fixed"` (or None) or a mapping of parameter names to kinds: the user's `degrees`
+        and kinds on the model's defaults (`law_spec`, `default_degrees`); a `"sat"` law's
+        scale is chosen by least squares on the per-test values (the scale of `SAT_SCALES` x
+        the current range with the lowest residual).
 
     **Arguments:** `n_currents` distinct command levels (`math.inf` for a time-varying
     command, where `"auto"` and `"sat"` are not available: they need per-test values).
@@ -119,10 +120,17 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
     Raises :class:`mrjax.InputError` for unknown names, bad kinds or too high a degree.
     """
     names = model.param_names
-    auto = isinstance(laws, str)
-    if auto and laws != "auto":
-        raise InputError(f"laws must be 'auto' or a mapping of parameter names to kinds, got "
-                         f"{laws!r}")
+    if isinstance(laws, str):
+        if laws not in ("auto", "fixed"):
+            raise InputError(f"laws must be 'auto', 'fixed' or a mapping of parameter names to "
+                             f"kinds, got {laws!r}")
+        auto = laws == "auto"
+        laws = None
+    else:
+        auto = False
+    if laws is not None and not isinstance(laws, Mapping):
+        raise InputError(f"laws must be 'auto', 'fixed' or a mapping of parameter names to "
+                         f"kinds, got {laws!r}")
     if auto or (laws and "sat" in dict(laws).values()):
         if theta is None or current is None:
             raise InputError("laws='auto' and 'sat' laws are chosen from per-test fits at "
@@ -130,7 +138,7 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
     fixed = {} if (not auto or degrees is None) else (
         {n: int(degrees) for n in names} if isinstance(degrees, int | np.integer)
         else dict(degrees))
-    kinds, degs = law_spec(model, degrees, None if auto else laws, n_currents, unit)
+    kinds, degs = law_spec(model, degrees, laws, n_currents, unit)
     scales = [1.0] * len(names)
     criteria: dict[str, dict[str, float]] | None = None
     if theta is not None and current is not None:

@@ -129,7 +129,9 @@ def identify(
         others get :func:`default_degrees` for the command's unit (a voltage: Spencer's c0,
         c1, alpha linear for the modified Bouc-Wen), capped by the distinct constant levels
         when no command varies.
-    - `laws`: parameter name -> `"poly"` (default) or `"exp"`.
+    - `laws`: parameter name -> `"poly"` (default) or `"exp"`, the others by `degrees` and
+        the defaults (`"fixed"`, None); the forms chosen by the data (`"auto"`) and `"sat"`
+        laws need per-test fits at constant commands (`generalize`).
     - `lag`: `"fit"` (default; $\\eta$ searched in `lag_bounds`), a rate [1/s] to fix it, or
         None for no filter. Without a time-varying command the lag has no effect and is not
         fitted.
