@@ -467,7 +467,9 @@ class GeneralizedModel:
                    current_range=tuple(rng), weighting=d.get("weighting") or "",
                    command_unit=unit, lag=None if lag is None else float(lag),
                    uncertainty=LawUncertainty.from_dict(d),
-                   info={"lag_fitted": bool(d.get("lag_fitted", False))})
+                   info={"lag_fitted": bool(d.get("lag_fitted", False)),
+                         **{k: d[k] for k in ("law_choice", "law_criteria")
+                            if d.get(k) is not None and d.get(k) != "given"}})
 
     def to_json(self, **kw) -> str:
         """JSON text of :meth:`to_dict`."""
