@@ -57,7 +57,10 @@ def main(argv: list[str] | None = None) -> int:
     doc = {"process_id": RANK, "n_devices": len(jax.devices()),
            "n_local_devices": len(jax.local_devices()),
            "n_devices_of_x": len(b.x.sharding.device_set),
-           "theta": theta.tolist(), "rms": rms.tolist()}
+           "theta": theta.tolist(), "rms": rms.tolist(),
+           "generations": np.asarray(process_allgather(sw.result.generations,
+                                                       tiled=True))[:C].tolist(),
+           "history": np.asarray(process_allgather(sw.result.history, tiled=True))[:C].tolist()}
     text = json.dumps(doc)  # floats by repr: exact
     if a.out:
         with open(a.out, "w") as fh:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -275,7 +276,7 @@ def one_error_line(err: str) -> str:
 
 
 _TOP = {"model": str, "method": str, "swarm": str, "seed": int, "param_names": list,
-        "units": list, "mrjax_version": str, "conditions": list}
+        "units": list, "mrjax_version": str, "conditions": list, "warnings": list}
 _COND = {"label": str, "current_A": (float, NoneType), "frequency_Hz": (float, NoneType),
          "amplitude_m": (float, NoneType), "n_samples": int, "params": dict, "stderr": dict,
          "rms_N": float, "nrmse": float, "pso_rms_N": (float, NoneType),
@@ -299,6 +300,11 @@ def check_fit_schema(doc: dict, n_conditions: int) -> None:
     assert names == list(mrjax.models.get(doc["model"]).param_names)
     assert len(doc["units"]) == len(names) and all(isinstance(u, str) for u in doc["units"])
     assert len(doc["conditions"]) == n_conditions
+    labels = {c["label"] for c in doc["conditions"]}
+    for w in doc["warnings"]:
+        assert set(w) == {"kind", "message", "conditions", "parameters"}, w
+        assert w["kind"] in ("at_bound", "not_identifiable", "too_few_currents"), w
+        assert set(w["conditions"]) <= labels and set(w["parameters"]) <= set(names), w
     for c in doc["conditions"]:
         for key, t in _COND.items():
             assert key in c, f"condition lacks {key!r}"
@@ -333,3 +339,75 @@ def short_batch(name: str, *, noise_frac: float = 0.01, seed: int = 0):
         conds.append(mrjax.data.simulate(name, theta, frequency=f, amplitude=a, cycles=cycles,
                                          noise=sigma, seed=seed + k))
     return mrjax.data.make_batch(conds), np.broadcast_to(theta, (2, len(theta))).copy()
+
+
+# --------------------------------------------------------------------------------------------
+# One result computed two ways (a batch and its parts, pages, chunks, devices): equal to
+# rounding, on any CPU. XLA vectorises a reduction differently for different batch widths and
+# CPUs (AVX-512, AVX2, NEON), so the two agree to ~1e-13 relative, not bit for bit. A count
+# decided by a stopping test moves when that test's margin is within rounding: the polish's
+# stall test compares RMS changes of ~1e-12 near an optimum, so its step counts move freely
+# (seen: [6, 6, 7] vs [6, 6, 12] on an AMD EPYC); the swarm's statistical stop compares a mean
+# improvement with a threshold far above rounding, so its generation counts move only in a rare
+# near-tie.
+
+#: Relative agreement of swarm fitness and positions computed two ways (measured ~1e-13).
+SWARM_RTOL = 1e-9
+#: Relative agreement of two polishes of one problem that stopped at different steps: the stall
+#: test stops when 8 steps lower the RMS by less than `mrjax.refine.DEFAULT_TOL` (1e-6), so
+#: their RMS agree to about that; a step count itself is never compared.
+POLISH_RMS_RTOL = 2e-6
+
+
+def assert_same_swarms(gens_a, gens_b, hist_a, hist_b, pos_a=None, pos_b=None, *,
+                       rtol: float = SWARM_RTOL, max_moved: int = 1) -> None:
+    """Swarms of the same conditions computed two ways: each best-fitness history agrees to
+    `rtol` up to the earlier of the two stops; the generation counts agree except for at most
+    `max_moved` conditions (a statistical stop within rounding of its threshold); where they
+    agree, the final positions agree to `rtol` too.
+
+    A real defect (conditions mixed, a key reused, a stop ignored) fails: histories differ from
+    generation 0 (every condition has its own data and stream), or many counts differ.
+    """
+    ga, gb = np.asarray(gens_a).reshape(-1), np.asarray(gens_b).reshape(-1)
+    ha, hb = np.asarray(hist_a).reshape(ga.size, -1), np.asarray(hist_b).reshape(gb.size, -1)
+    assert ga.shape == gb.shape
+    for c, (x, y) in enumerate(zip(ga, gb)):
+        g = int(min(x, y)) + 1 if x >= 0 else ha.shape[1]
+        np.testing.assert_allclose(ha[c, :g], hb[c, :g], rtol=rtol, err_msg=f"condition {c}")
+    moved = np.flatnonzero(ga != gb)
+    assert moved.size <= max_moved, f"generations {ga} vs {gb}"
+    if pos_a is not None:
+        same = ga == gb
+        np.testing.assert_allclose(np.asarray(pos_a)[same], np.asarray(pos_b)[same], rtol=rtol,
+                                   atol=0)
+
+
+def assert_same_polish(rms_a, rms_b, theta_a=None, theta_b=None, *,
+                       rms_rtol: float = POLISH_RMS_RTOL, theta_rtol: float = 1e-4) -> None:
+    """Polishes of the same conditions computed two ways (possibly stopped at different steps):
+    RMS equal to `rms_rtol`, parameters to `theta_rtol` (well-determined fits; a defect such as
+    a condition polished on another's data moves them by percents)."""
+    np.testing.assert_allclose(np.asarray(rms_a), np.asarray(rms_b), rtol=rms_rtol)
+    if theta_a is not None:
+        np.testing.assert_allclose(np.asarray(theta_a), np.asarray(theta_b), rtol=theta_rtol)
+
+
+def outputs(d) -> list[str]:
+    """The names of a command's outputs in directory `d`, sorted: every entry but the manifest
+    that says which command wrote them (`mrjax._io.MANIFEST`, checked in test_outputs.py)."""
+    from mrjax._io import MANIFEST
+
+    return sorted(p for p in os.listdir(d) if p != MANIFEST)
+
+
+def previous_output(d: Path, command: str = "fit", files: dict[str, bytes] | None = None) -> Path:
+    """Directory `d` as a previous run of `mrjax COMMAND` left it (its files and the manifest,
+    written by `mrjax._io.OutputDir`); default files: an old fit.json and loops.png."""
+    from mrjax._io import OutputDir
+
+    if files is None:
+        files = {"fit.json": b'{"previous": "run"}\n', "loops.png": PNG_MAGIC + b"old"}
+    with OutputDir(d, command) as out:
+        out.write(files)
+    return d

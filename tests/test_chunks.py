@@ -11,8 +11,10 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from helpers import SWARM_RTOL, assert_same_polish, assert_same_swarms
 
 import mrjax
+from mrjax._io import MANIFEST
 from mrjax.cli import main
 from mrjax.data import make_batch, paper_grid
 from mrjax.engine import row_keys as condition_keys
@@ -32,6 +34,24 @@ def assert_identical(a: FitResult, b: FitResult) -> None:
         else:
             assert x.dtype == y.dtype and x.shape == y.shape, f
             assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), (f, x, y)
+
+
+def assert_same_to_rounding(a: FitResult, b: FitResult) -> None:
+    """One fit computed in other chunks: the inputs' fields equal, the swarm's and the
+    polish's results equal to rounding (`helpers.assert_same_swarms` / `assert_same_polish`:
+    a stop within rounding of its threshold may move; polish step counts are not compared).
+    Tests fitted in the wrong chunk, with another's key or view, differ by percents."""
+    for f in ("labels", "current", "frequency", "amplitude", "n_samples", "estimated"):
+        x, y = getattr(a, f), getattr(b, f)
+        assert x == y if isinstance(x, tuple) else np.array_equal(x, y, equal_nan=True), f
+    assert_same_swarms(a.generations, b.generations, a.history, b.history)
+    if a.method == "pso":
+        same = a.generations == b.generations
+        np.testing.assert_allclose(a.theta[same], b.theta[same], rtol=SWARM_RTOL)
+        np.testing.assert_allclose(a.rms[same], b.rms[same], rtol=SWARM_RTOL)
+    else:
+        assert_same_polish(a.rms, b.rms, a.theta, b.theta)
+        np.testing.assert_allclose(a.stderr, b.stderr, rtol=1e-3)
 
 
 #: Options of every kwok fit here (shared compiled programs). Many particles make small chunks
@@ -117,10 +137,13 @@ def test_condition_keys_do_not_depend_on_the_count():
 
 @pytest.mark.parametrize("model", ["kwok", "dahl"])
 def test_chunked_equals_unchunked(model, kwok30, dahl30):
-    """Bit for bit: every condition has its own stream (restarts: copy k of condition i at row
+    """The same fit: every condition has its own stream (restarts: copy k of condition i at row
     k*C + i of the whole batch's keys), the same padded record and view length and the same
     place in a vector of rows; Dahl is an ODE model whose integration never depends on the
-    batch (one exact step per sample), fitted here by its swarm alone (on its view)."""
+    batch (one exact step per sample), fitted here by its swarm alone (on its view). Bit for
+    bit on the x86-64 CPUs measured (Intel Xeon, AMD EPYC); asserted to rounding, since the
+    chunk and the whole batch are different compiled shapes, whose sums another CPU may
+    vectorise differently."""
     if model == "kwok":  # 3 chunks
         batch, options = kwok30, dict(KWOK, polish_steps=30)
     else:  # 2 chunks
@@ -128,7 +151,7 @@ def test_chunked_equals_unchunked(model, kwok30, dahl30):
                                       uncertainty=False, seed=3)
     one = mrjax.fit(model, batch, **options)
     chunked = mrjax.fit(model, batch, chunk_size=1, **options)  # the smallest chunks allowed
-    assert_identical(one, chunked)
+    assert_same_to_rounding(one, chunked)
     assert set(chunked.timings) >= {"prepare", "swarm", "start", "total"}
 
 
@@ -247,7 +270,7 @@ def test_cli_resume_gives_the_same_bytes(csv30, tmp_path, monkeypatch, capsys):
     assert main(["fit", *argv, "--out", str(out), "--resume"]) == 0
     assert stage.calls == 2  # only the missing chunks
     assert _files(out) == _files(tmp_path / "whole")  # byte for byte; the journal is gone
-    assert sorted(_files(out)) == ["fit.csv", "fit.json"]
+    assert sorted(_files(out)) == [MANIFEST, "fit.csv", "fit.json"]
 
 
 def test_cli_memory_and_devices_options(csv30, tmp_path, capsys):
@@ -288,14 +311,17 @@ def test_cli_devices_two_cpu_devices(csv30, tmp_path):
     one, two = (json.loads((tmp_path / d / "fit.json").read_text()) for d in ("d1", "d2"))
     assert [c["label"] for c in one["conditions"]] == [c["label"] for c in two["conditions"]]
     for a, b in zip(one["conditions"], two["conditions"]):
-        for k in ("params", "rms_N", "nrmse", "generations", "stopped_by_criterion",
-                  "polish_steps", "polish_status", "identifiable"):
+        # a fixed generation count and no polish: no count can move
+        for k in ("generations", "stopped_by_criterion", "polish_steps", "polish_status"):
             assert a[k] == b[k], (k, a[k], b[k])
-        # the swarm's own RMS and the std-errors may differ in the last bits: XLA tiles their
-        # sums for the local shape (see test_parallel.py)
-        assert abs(a["pso_rms_N"] - b["pso_rms_N"]) <= 1e-11 * a["pso_rms_N"]
-        for name, v in a["stderr"].items():
-            assert abs(v - b["stderr"][name]) <= 1e-11 * abs(v), (name, v, b["stderr"][name])
+        # equal to rounding (bit for bit on the CPUs measured, except the swarm's own RMS and
+        # the std-errors: XLA tiles their sums for the local shape, see test_parallel.py)
+        np.testing.assert_allclose(list(a["params"].values()), list(b["params"].values()),
+                                   rtol=SWARM_RTOL)
+        for k in ("rms_N", "nrmse", "pso_rms_N"):
+            np.testing.assert_allclose(a[k], b[k], rtol=SWARM_RTOL, err_msg=k)
+        np.testing.assert_allclose(list(a["stderr"].values()), list(b["stderr"].values()),
+                                   rtol=1e-9)
 
 
 def test_compare_passes_the_memory_options(kwok30):

@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import PNG_MAGIC, check_fit_schema, check_pngs, one_error_line, snapshot
+from helpers import (
+    check_fit_schema,
+    check_pngs,
+    one_error_line,
+    outputs,
+    previous_output,
+    snapshot,
+)
 from helpers import run_cli as run
 
 import mrjax
@@ -89,7 +96,7 @@ def utfsm_run(utfsm, tmp_path_factory):
 
 def test_fit_csv_end_to_end(csv_run, csv_file, grid):
     assert csv_run.code == 0, csv_run.stderr
-    files = set(os.listdir(csv_run.out))
+    files = set(outputs(csv_run.out))
     assert files == {"fit.json", "fit.csv"} | FIT_PNGS  # no temporary leftovers either
     assert not [p for p in os.listdir(csv_run.out.parent) if p.startswith(".mrjax")]
     check_pngs(csv_run.out, FIT_PNGS)
@@ -134,7 +141,7 @@ def test_fit_csv_end_to_end(csv_run, csv_file, grid):
 
 def test_fit_utfsm_no_plots(utfsm_run):
     assert utfsm_run.code == 0, utfsm_run.stderr
-    assert sorted(os.listdir(utfsm_run.out)) == ["fit.csv", "fit.json"]  # --no-plots
+    assert outputs(utfsm_run.out) == ["fit.csv", "fit.json"]  # --no-plots
     doc = json.loads((utfsm_run.out / "fit.json").read_text())
     check_fit_schema(doc, 3)
     assert "generalized" not in doc
@@ -160,7 +167,7 @@ def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path):
     code, stdout, stderr = run(["predict", "--fit", csv_run.out / "fit.json", csv_file,
                                 "--out", out])
     assert code == 0, stderr
-    assert set(os.listdir(out)) == {"predict.json", "predict.csv", "predict_loops.png",
+    assert set(outputs(out)) == {"predict.json", "predict.csv", "predict_loops.png",
                                     "predict_rms_vs_current.png"}
     check_pngs(out, ["predict_loops.png", "predict_rms_vs_current.png"])
     doc = json.loads((out / "predict.json").read_text())
@@ -177,7 +184,7 @@ def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path):
     # a directory holding fit.json is accepted too; --no-plots writes no figures
     code, _, _ = run(["predict", "--fit", csv_run.out, csv_file, "--out", out / "again",
                       "--no-plots"])
-    assert code == 0 and sorted(os.listdir(out / "again")) == ["predict.csv", "predict.json"]
+    assert code == 0 and outputs(out / "again") == ["predict.csv", "predict.json"]
 
 
 def test_predict_needs_a_generalized_block(utfsm_run, utfsm, tmp_path):
@@ -207,11 +214,7 @@ def test_predict_bad_fit_json(content, needle, csv_file, tmp_path):
 
 @pytest.fixture
 def existing_out(tmp_path):
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "fit.json").write_text('{"old": true}')
-    (out / "loops.png").write_bytes(PNG_MAGIC + b"old")
-    return out
+    return previous_output(tmp_path / "out")
 
 
 def _nan_csv(csv_file, tmp_path):
@@ -400,7 +403,12 @@ def test_models_lists_every_model():
         assert name in out and m.description in out
         for p in m.param_names:
             assert any(line.split()[:1] == [p] for line in out.splitlines()), p
-    kwok_rows = {ln.split()[0]: ln.split() for ln in out.split("kwok  [")[1].splitlines()[3:9]}
+    # every alias is listed with its model and names it (`mrjax fit --model tanh` works)
+    for alias, name in mrjax.models.aliases().items():
+        assert alias in out.split(f"{name} (also: ")[1].split(")")[0]
+        assert mrjax.models.get(alias).name == name
+    kwok_rows = {ln.split()[0]: ln.split()
+                 for ln in out.split("kwok (also: tanh)  [")[1].splitlines()[3:9]}
     lo, hi = mrjax.models.get("kwok").bounds
     assert kwok_rows["beta"][1] == "s/m" and float(kwok_rows["beta"][3]) == hi[3]
     code, md, _ = run(["models", "--markdown"])
@@ -416,7 +424,9 @@ def test_reproduce_delegates(monkeypatch, tmp_path):
     code, _, _ = run(["reproduce", "--quick", "--data", tmp_path, "--out", tmp_path / "r",
                       "--seed", 7])
     assert code == 3
-    assert calls == [(str(tmp_path / "r"), {"quick": True, "data": str(tmp_path), "seed": 7})]
+    (out, kw), = calls  # the claimed output directory of the command
+    assert out.path == tmp_path / "r" and out.command == "reproduce"
+    assert kw == {"quick": True, "data": str(tmp_path), "seed": 7}
 
 
 # --------------------------------------------------------------------------------------------

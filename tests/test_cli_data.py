@@ -10,7 +10,6 @@ against the truth. Every bad spec gives one line, exit 2, and writes nothing.
 """
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -27,6 +26,8 @@ from helpers import (
     exact,
     motion,
     one_error_line,
+    outputs,
+    previous_output,
     snapshot,
     tanh_force,
     write_layout_a,
@@ -101,7 +102,7 @@ def test_fit_layout_end_to_end(layouts, layout, kind, tmp_path):
     code, stdout, stderr = run(["fit", *data_args(layouts, layout, kind), "--model", "kwok",
                                 "--generations", 8, "--no-plots", "--out", out])
     assert code == 0, stderr
-    assert sorted(os.listdir(out)) == ["fit.csv", "fit.json"]
+    assert outputs(out) == ["fit.csv", "fit.json"]
     doc = json.loads((out / "fit.json").read_text())
     labels, currents, estimated = EXPECT[layout]
     check_fit_schema(doc, len(labels))
@@ -143,7 +144,7 @@ def test_fit_figures_loops_for_sines_force_against_time_for_random_records(tmp_p
     code, _, stderr = run(["fit", tmp_path / "8mm1Hz0x5A.txt", tmp_path / "random.csv",
                            "--model", "kwok", "--generations", 8, "--out", out])
     assert code == 0, stderr
-    pngs = {p for p in os.listdir(out) if p.endswith(".png")}
+    pngs = {p for p in outputs(out) if p.endswith(".png")}
     assert {"loops.png", "force_time.png"} <= pngs
     check_pngs(out, pngs)
     doc = json.loads((out / "fit.json").read_text())
@@ -165,7 +166,7 @@ def test_predict_and_compare_with_data_options(layouts, tmp_path):
     code, stdout, err = run(["predict", "--fit", fit_out, *data_args(layouts, "b", "flags"),
                              "--out", out])
     assert code == 0, err
-    assert sorted(os.listdir(out)) == ["predict.csv", "predict.json", "predict_force_time.png",
+    assert outputs(out) == ["predict.csv", "predict.json", "predict_force_time.png",
                                        "predict_rms_vs_current.png"]
     doc = json.loads((out / "predict.json").read_text())
     assert [c["current_A"] for c in doc["conditions"]] == [0.5, 1.0]
@@ -225,7 +226,7 @@ def test_inspect_each_layout(layouts, layout, tmp_path):
     out = tmp_path / "out"
     code, stdout, stderr = run(["inspect", *data_args(layouts, layout, "flags"), "--out", out])
     assert code == 0, stderr
-    assert sorted(os.listdir(out)) == ["inspect.json", "inspect.png", "spec.toml"]
+    assert outputs(out) == ["inspect.json", "inspect.png", "spec.toml"]
     check_pngs(out, ["inspect.png"])
     labels, currents, estimated = EXPECT[layout]
     lines = stdout.splitlines()
@@ -259,7 +260,7 @@ def test_inspect_each_layout(layouts, layout, tmp_path):
                             "--out", tmp_path / "again", "--no-plots"])
     assert code == 0, err
     assert again == stdout
-    assert sorted(os.listdir(tmp_path / "again")) == ["inspect.json", "spec.toml"]
+    assert outputs(tmp_path / "again") == ["inspect.json", "spec.toml"]
 
 
 def test_inspect_without_options_reads_files_by_their_conventions(tmp_path):
@@ -271,7 +272,7 @@ def test_inspect_without_options_reads_files_by_their_conventions(tmp_path):
     assert code == 0, err
     assert stdout.splitlines()[0].startswith("8mm1Hz0x5A: 1000 samples at 1000 Hz")
     assert "f 1 Hz, A 8 mm; current 0.5 A" in stdout and "~" not in stdout
-    assert sorted(os.listdir(tmp_path / "o")) == ["inspect.json", "inspect.png"]  # no spec
+    assert outputs(tmp_path / "o") == ["inspect.json", "inspect.png"]  # no spec
 
 
 def test_flags_override_single_keys_of_the_spec_file(layouts, tmp_path):
@@ -355,9 +356,7 @@ def test_bad_spec_one_line_exit_2_nothing_written(case, command, tmp_path):
     if "BAD" in argv:
         argv.remove("BAD")
         files = [_bad_csv(tmp_path)]
-    existing = tmp_path / "existing"
-    existing.mkdir()
-    (existing / "fit.json").write_text("{}")
+    existing = previous_output(tmp_path / "existing", command)
     before = snapshot(existing)
     extra = ["--model", "kwok"] if command == "fit" else []
     for out in (existing, tmp_path / "new"):
@@ -420,3 +419,21 @@ def test_readme_examples_are_the_tested_ones():
         from_file = mrjax.data.DataSpec.from_dict(tomllib.loads(specs[name]))
         from_flags = mrjax.data.DataSpec.from_options(**options)
         assert from_file == from_flags.replace(origin=""), name
+
+
+def test_inspect_shows_the_measured_amplitude_beside_a_nominal_one(tmp_path):
+    """A UTFSM-style name gives the nominal amplitude (2 mm); the record spans +-1.62 mm:
+    `inspect` shows both. Where they agree (within 2 %) only the one value is shown."""
+    for name, amp in (("2mm5Hz0A.txt", 1.62e-3), ("10mm1Hz0A.txt", 10e-3)):
+        t, x, v = mrjax.data.sine_excitation(1.0, amp, sample_rate=200.0, cycles=3)
+        f = 300.0 * np.tanh(v / 0.01)
+        np.savetxt(tmp_path / name, np.column_stack([t, x * 1e3, v * 1e3, f]))
+    code, stdout, err = run(["inspect", tmp_path / "2mm5Hz0A.txt", tmp_path / "10mm1Hz0A.txt",
+                             "--no-plots", "--out", tmp_path / "o"])
+    assert code == 0, err
+    small, large = (ln for ln in stdout.splitlines() if ln.startswith(("2mm", "10mm")))
+    assert "A 2 mm nominal, 1.62 mm measured (half the range)" in small, small
+    assert "A 10 mm" in large and "nominal" not in large, large
+    doc = json.loads((tmp_path / "o" / "inspect.json").read_text())
+    np.testing.assert_allclose([c["amplitude_measured"] for c in doc["conditions"]],
+                               [1.62e-3, 10e-3], rtol=1e-3)

@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import MODEL_NAMES, TRUE_PARAMS
+from helpers import MODEL_NAMES, TRUE_PARAMS, outputs
 
 import mrjax
+import mrjax.report
 from mrjax import InputError, cli
 from mrjax.comparison import information_criteria, n_free_parameters, plan_validation
 from mrjax.data import Condition, make_batch, paper_parameters, simulate
@@ -182,7 +183,7 @@ def known():
                                   sample_rate=400.0, cycles=1.5, noise=NOISE,
                                   seed=100 + len(conds), label=f"{g}_{j}"))
     batch = make_batch(conds)
-    res = mrjax.compare(batch, models="all", generalize_methods=(), seed=0, **FAST)
+    res = mrjax.compare(batch, models=MODEL_NAMES, generalize_methods=(), seed=0, **FAST)
     return batch, res
 
 
@@ -333,7 +334,7 @@ def test_figures(held):
     (dict(models="kwok", hold_out={"current": [3.0]}), "hold-out set is empty at 3 A"),
     (dict(models="kwok", key=0), "seed="),
     (dict(models="kwok", bounds={"dahl": None}), "not compared"),
-    (dict(models="kwok", polish=True), "unknown fit option 'polish'"),
+    (dict(models="kwok", polish_iterations=5), "unknown fit option 'polish_iterations'"),
     (dict(models="kwok", generalize_methods="two-step,three-step"), "'three-step'"),
 ])
 def test_compare_bad_input(grid, kwargs, needle):
@@ -377,7 +378,7 @@ def test_cli_end_to_end(grid, held, tmp_path):
     assert code == 0, stderr
     assert "ranking by summed BIC: kwok" in stdout
     assert "[1/1] kwok: fitting 8 tests" in stderr and "[1/1] kwok: done in" in stderr
-    assert {p.name for p in out.iterdir()} == {
+    assert set(outputs(out)) == {
         "compare.json", "compare.csv", "nrmse_per_test.png", "delta_aic.png",
         "holdout_nrmse.png", "worst_test.png"}
     doc = json.loads((out / "compare.json").read_text())

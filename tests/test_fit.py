@@ -140,8 +140,8 @@ def test_restarts_keep_the_best_swarm_per_condition(grid):
     best = np.argmin(rms, axis=0)
     assert len(set(np.round(rms[:, 0], 6))) > 1  # the copies are independent searches
     np.testing.assert_allclose(res.pso_rms, rms.min(axis=0), rtol=1e-12)
-    np.testing.assert_array_equal(
-        res.theta, np.asarray(rep.theta).reshape(K, C, -1)[best, np.arange(C)])
+    np.testing.assert_allclose(
+        res.theta, np.asarray(rep.theta).reshape(K, C, -1)[best, np.arange(C)], rtol=1e-12)
     assert res.history.shape == (C, 16) and res.labels == sub.labels
     with pytest.raises(mrjax.InputError, match="restarts"):
         mrjax.fit("kwok", sub, restarts=0)

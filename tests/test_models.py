@@ -119,7 +119,9 @@ def numpy_rk4_force(name, theta, x, v, dt, m):
 
 # ================================================================== 1. contract
 def test_names_and_unknown():
-    assert set(mrjax.models.names()) == set(MODEL_NAMES)
+    # the paper's models first, then the literature models declared through the contract
+    # (tests/test_usermodel.py), then any registered or installed ones
+    assert mrjax.models.names()[:len(MODEL_NAMES)] == MODEL_NAMES
     for name in MODEL_NAMES:
         assert get(name).name == name
     assert get("tanh").name == "kwok"
@@ -489,7 +491,7 @@ def test_implicit_tangent_is_the_exact_jacobian_to_the_newton_correction(name, t
     implicit = get(name).with_substeps(1, "sdirk", "implicit")
     assert implicit.tangent == "implicit" and exact.tangent is None
     F_e, F_i = (np.asarray(jax.jit(m.force)(theta, x, v, dt)) for m in (exact, implicit))
-    np.testing.assert_array_equal(F_i, F_e)
+    np.testing.assert_allclose(F_i, F_e, rtol=1e-13, atol=1e-10)  # two programs: to rounding
     J_e, J_i = (np.asarray(jax.jit(jax.jacfwd(m.force))(theta, x, v, dt))
                 for m in (exact, implicit))
     norm = np.linalg.norm(J_e, axis=0)
@@ -647,7 +649,7 @@ def test_random_parameters_finite_and_padding_invariant(name):
         vp = np.concatenate([v, np.zeros(pad)])
         assert model.resolve_substeps(theta, vp, dt) == m
         Fp = np.asarray(force(theta, xp, vp, dt))
-        np.testing.assert_array_equal(Fp[:N_REAL], F)
+        np.testing.assert_allclose(Fp[:N_REAL], F, rtol=1e-13, atol=1e-10)  # two programs
         assert np.all(np.isfinite(Fp))
 
     check()

@@ -4,8 +4,8 @@
 `jax.distributed.initialize(coordinator_address="127.0.0.1:PORT", num_processes=2,
 process_id=i)` and CPU collectives over loopback TCP (gloo); each process holds one CPU device,
 so the condition axis is split between the processes. The gathered result must equal a
-single-process `mrjax.fit` of the same batch with the same key: the parameters bit for bit, the
-swarm's own RMS to the last bits.
+single-process `mrjax.fit` of the same batch with the same key to rounding (bit for bit on the
+machines measured; the per-condition sums are tiled for the local shape, so not on every CPU).
 """
 
 import json
@@ -18,6 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from helpers import SWARM_RTOL, assert_same_swarms
 
 import mrjax
 
@@ -101,9 +102,13 @@ def test_two_processes_equal_one(tmp_path):
                                   cycles=1, sample_rate=500.0)
     one = mrjax.fit("kwok", batch, method="pso", key=jax.random.key(0), uncertainty=False)
     theta = np.asarray(docs[0]["theta"])
-    np.testing.assert_array_equal(theta, one.theta)  # the parameters: bit for bit
-    model = mrjax.models.get("kwok")
-    np.testing.assert_array_equal(mrjax.objective.rms_per_condition(model, theta, batch), one.rms)
-    # the swarm's own RMS of them: XLA tiles the per-condition sums for the local shape (2
-    # conditions per process here), as on several devices of one process (test_parallel.py)
-    np.testing.assert_allclose(np.asarray(docs[0]["rms"]), one.pso_rms, rtol=1e-11, atol=0)
+    # The same swarms to rounding: XLA tiles the per-condition sums for the local shape (2
+    # conditions per process here), as on several devices of one process (test_parallel.py),
+    # so the fitness agrees to ~1e-13 and a stop within rounding of its threshold may move
+    # (`helpers.assert_same_swarms`). A process fitting another's conditions, or a key reused,
+    # differs from the first generation.
+    assert_same_swarms(docs[0]["generations"], one.generations, np.array(docs[0]["history"]),
+                       one.history, theta, one.theta)
+    same = np.equal(docs[0]["generations"], one.generations)
+    np.testing.assert_allclose(np.asarray(docs[0]["rms"])[same], one.pso_rms[same],
+                               rtol=SWARM_RTOL)

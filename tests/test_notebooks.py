@@ -14,7 +14,8 @@ import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
-NAMES = ("01_quickstart.ipynb", "02_real_data.ipynb", "03_pso_vs_polish.ipynb")
+NAMES = ("01_quickstart.ipynb", "02_real_data.ipynb", "03_pso_vs_polish.ipynb",
+         "04_your_own_model.ipynb")
 CELL_TIMEOUT_S = 600
 
 
@@ -86,3 +87,12 @@ def test_pso_vs_polish():
     for method in ("paper's swarm", "separable swarm + LM", "LM alone"):
         assert method in out
     assert "stuck on" in out
+
+
+def test_your_own_model():
+    out = text_of(execute("04_your_own_model.ipynb", {}))
+    assert "derived: parameter-free regressors ('c', 'k', 'f0')" in out
+    assert "one line: model 'oops': parameter 'beta' is declared linear but the force" in out
+    assert "k = {'kwok': 7, 'asym_tanh': 8}" in out
+    assert "same force: largest difference" in out and "asym_tanh generalized" in out
+    assert "registered: True" in out and "'kind': 'file'" in out

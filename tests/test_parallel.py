@@ -13,6 +13,7 @@ import textwrap
 import jax
 import numpy as np
 import pytest
+from helpers import POLISH_RMS_RTOL, SWARM_RTOL, assert_same_polish, assert_same_swarms
 
 import mrjax
 from mrjax.data import paper_grid
@@ -77,12 +78,9 @@ _SCRIPT = textwrap.dedent("""
         one = mrjax.fit("kwok", batch, seed=3, **kw)
         two = mrjax.fit("kwok", batch, seed=3, devices="all", **kw)
         r = {"C": [one.n_conditions, two.n_conditions], "labels_equal": one.labels == two.labels}
-        for f in ("theta", "rms", "nrmse", "generations", "stopped_by_criterion",
-                  "polish_steps", "n_samples"):
-            r[f] = bool(np.array_equal(getattr(one, f), getattr(two, f)))
-        for f in ("history", "pso_rms"):
-            a, b = getattr(one, f), getattr(two, f)
-            r[f + "_max_rel"] = float(np.nanmax(np.abs(a - b) / np.abs(a))) if a.size else 0.0
+        for f in ("theta", "rms", "nrmse", "generations", "stopped_by_criterion", "n_samples",
+                  "history", "pso_rms"):
+            r[f] = [np.asarray(getattr(one, f)).tolist(), np.asarray(getattr(two, f)).tolist()]
         out[name] = r
     # the sharded batch really lives on both devices
     from mrjax.parallel import shard_batch
@@ -104,11 +102,21 @@ def test_sharded_fit_identical_to_single_device():
     for name in ("pso+lm", "pso-full"):
         r = out[name]
         assert r["C"] == [3, 3] and r["labels_equal"], r
-        # the fit result is identical: parameters, RMS, generations, stops, polish steps
-        for f in ("theta", "rms", "nrmse", "generations", "stopped_by_criterion",
-                  "polish_steps", "n_samples"):
-            assert r[f], (name, f, r)
-        # The swarm's own per-generation fitness values may differ in the last bits: with the
-        # condition axis split, XLA reduces the per-condition sums with kernels tiled for the
-        # local shape. They never changed a comparison here (same generations and optimum).
-        assert r["history_max_rel"] < 1e-11 and r["pso_rms_max_rel"] < 1e-11, r
+        # The same fit to rounding: with the condition axis split, XLA reduces the
+        # per-condition sums with kernels tiled for the local shape (last bits), so a stop
+        # within rounding of its threshold may move (see `helpers.assert_same_swarms`; the
+        # polish's step counts are not compared). Padding or a shard fitted on another
+        # condition's data moves them by percents.
+        (ga, gb), (ha, hb) = r["generations"], r["history"]
+        assert_same_swarms(ga, gb, np.array(ha, float), np.array(hb, float))
+        assert r["n_samples"][0] == r["n_samples"][1]
+        same = np.equal(ga, gb)
+        (sa, sb), (pa, pb) = r["stopped_by_criterion"], r["pso_rms"]
+        assert np.array_equal(np.array(sa)[same], np.array(sb)[same])
+        np.testing.assert_allclose(np.array(pa, float)[same], np.array(pb, float)[same],
+                                   rtol=SWARM_RTOL)
+        if name == "pso-full":  # a fixed generation count, no polish: the swarm's result
+            np.testing.assert_allclose(*r["theta"], rtol=SWARM_RTOL)
+            np.testing.assert_allclose(*r["rms"], rtol=SWARM_RTOL)
+        assert_same_polish(*r["rms"], *r["theta"])
+        np.testing.assert_allclose(*r["nrmse"], rtol=POLISH_RMS_RTOL)

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import assert_same_swarms
 
 import mrjax
 from mrjax import models
@@ -109,11 +110,13 @@ def test_batch_equals_per_condition_runs(small):
     m = models.get("kwok")
     keys = jax.random.split(jax.random.key(5), small.n_conditions)
     whole = fit_swarm(m, small, key=keys, mode="full", max_generations=40)
-    for i in range(small.n_conditions):
-        one = fit_swarm(m, small.subset([i]), key=keys[i:i + 1], mode="full", max_generations=40)
-        assert int(one.result.generations[0]) == int(whole.result.generations[i])
-        np.testing.assert_allclose(one.theta[0], whole.theta[i], rtol=1e-9)
-        np.testing.assert_allclose(one.result.history[0], whole.result.history[i], rtol=1e-9)
+    ones = [fit_swarm(m, small.subset([i]), key=keys[i:i + 1], mode="full", max_generations=40)
+            for i in range(small.n_conditions)]
+    # equal to rounding (a batch of one vectorises its sums differently), a stop moved by a
+    # near-tie excepted (see `helpers.assert_same_swarms`)
+    assert_same_swarms([o.result.generations[0] for o in ones], whole.result.generations,
+                       [o.result.history[0] for o in ones], whole.result.history,
+                       [o.theta[0] for o in ones], whole.theta)
 
 
 def test_frozen_condition_ignores_others():
@@ -170,8 +173,13 @@ def test_pages_score_only_running_conditions_same_result(page):
                   params=p, n_particles=N, max_generations=200, page_size=page)
     gens = np.asarray(whole.generations)
     assert len(set(gens.tolist())) > 1  # the conditions do stop at different generations
-    for name in ("position", "fitness", "generations", "history", "stopped_by_criterion"):
-        assert np.array_equal(np.asarray(getattr(whole, name)), np.asarray(getattr(paged, name)))
+    # the same swarms, to rounding (pages are narrower batches; a stop moved by a near-tie
+    # excepted, see `helpers.assert_same_swarms`)
+    assert_same_swarms(whole.generations, paged.generations, whole.history, paged.history,
+                       whole.position, paged.position)
+    same = np.asarray(whole.generations) == np.asarray(paged.generations)
+    assert np.array_equal(np.asarray(whole.stopped_by_criterion)[same],
+                          np.asarray(paged.stopped_by_criterion)[same])
     # unpaged: every condition scored every generation until the last stops (+ the start);
     # `unit` callbacks per scoring of one condition (JAX may batch the particles' callbacks)
     unit = all_counts[0] // (gens.max() + 1)
@@ -180,8 +188,9 @@ def test_pages_score_only_running_conditions_same_result(page):
     # paged: each condition until its own stop; padding of the last page (conditions that
     # already stopped) is the only extra work
     work = sum(_COUNTS.values()) / unit
-    assert all(_COUNTS[i] >= unit * (gens[i] + 1) for i in range(C))
-    assert work <= sum(gens + 1) + (page - 1) * gens.max()
+    gp = np.asarray(paged.generations)
+    assert all(_COUNTS[i] >= unit * (gp[i] + 1) for i in range(C))
+    assert work <= sum(gp + 1) + (page - 1) * gp.max()
     assert work < sum(all_counts.values()) / unit
 
 

@@ -6,6 +6,7 @@ polish), the Bouc-Wen tests share one small batch.
 
 import numpy as np
 import pytest
+from helpers import assert_same_polish
 
 import mrjax
 from mrjax import data, models, objective
@@ -257,11 +258,13 @@ def test_pages_give_the_batch_result(bw_batch, page):
     ref = polish(BOUC_WEN, start, bw_batch, **kw)
     res = polish(BOUC_WEN, start, bw_batch, page_size=page, **kw)
     assert len(set(np.asarray(ref.steps).tolist())) > 1  # the solves do differ in length
-    # equal up to rounding (a narrower batch vectorises differently: ~1e-10 relative)
-    np.testing.assert_allclose(np.asarray(res.theta), np.asarray(ref.theta), rtol=1e-7)
-    np.testing.assert_allclose(np.asarray(res.rms), np.asarray(ref.rms), rtol=1e-10)
-    # step counts are not compared: where the stall test sits near its threshold, a
-    # rounding-level difference (batch width, CPU) moves the step it stops at
+    # Equal up to rounding: a narrower batch vectorises differently, and the stall test then
+    # stops some solves steps apart (on an AMD EPYC [6, 6, 12] vs [6, 6, 9]; the step counts are
+    # therefore not compared), at an RMS equal to the stall test's tolerance. A page polishing
+    # another condition's data, or padding leaking in, moves them by percents (the starts are
+    # 5-10 % off).
+    assert_same_polish(res.rms, ref.rms, res.theta, ref.theta)
+    assert np.all(np.asarray(res.rms) < np.asarray(res.rms_start))  # it did polish
     assert res.status == ref.status
     with pytest.raises(mrjax.InputError, match="page_size"):
         polish(BOUC_WEN, start, bw_batch, page_size=0, **kw)

@@ -35,7 +35,16 @@ import jax
 import numpy as np
 import pytest
 import scipy.io
-from helpers import MODEL_NAMES, TRUE_PARAMS, draw_sine
+from helpers import (
+    MODEL_NAMES,
+    POLISH_RMS_RTOL,
+    SWARM_RTOL,
+    TRUE_PARAMS,
+    assert_same_polish,
+    assert_same_swarms,
+    draw_sine,
+    previous_output,
+)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -407,10 +416,7 @@ def test_bad_input_cli(kind, build, needles, tmp_path):
     bad = build(tmp_path)
     out = bad.out
     if out is None:
-        out = tmp_path / "out"
-        out.mkdir()
-        (out / "fit.json").write_text('{"previous": "run"}\n')
-        (out / "loops.png").write_bytes(b"\x89PNG\r\n\x1a\nold")
+        out = previous_output(tmp_path / "out")
     argv = ["fit", *bad.files, "--model", bad.model, "--out", out, *bad.cli]
     before = snapshot(tmp_path)
     code, stdout, stderr = run(argv)
@@ -731,14 +737,18 @@ def test_one_broken_condition_leaves_the_other_35_unchanged(broken_grid):
         r36 = mrjax.fit("kwok", broken_grid, key=keys)
         r35 = mrjax.fit("kwok", broken_grid.subset(others), key=keys[others])
     assert r35.n_conditions == 35 and broken_grid.subset(others).length == broken_grid.length
-    for j, i in enumerate(others):
-        assert r36.labels[i] == r35.labels[j]
-        assert r36.polish_status[i] == r35.polish_status[j]
-        assert r36.polish_steps[i] == r35.polish_steps[j]
-        for field in ("theta", "rms", "nrmse", "pso_rms", "generations", "stopped_by_criterion",
-                      "history", "stderr"):
-            np.testing.assert_array_equal(getattr(r36, field)[i], getattr(r35, field)[j],
-                                          err_msg=f"{field} of {r35.labels[j]}")
+    assert [r36.labels[i] for i in others] == list(r35.labels)
+    # The other 35 are the same fits, to rounding: 35 and 36 conditions vectorise their sums
+    # differently, so a stop within rounding of its threshold may move (the polish's step
+    # counts are not compared; see `helpers.assert_same_swarms`). A broken condition that
+    # leaked into the others (a shared best, a shared stop, NaN) moves them by percents.
+    assert_same_swarms(r36.generations[others], r35.generations, r36.history[others],
+                       r35.history)
+    same = r36.generations[others] == r35.generations
+    np.testing.assert_allclose(r36.pso_rms[others][same], r35.pso_rms[same], rtol=SWARM_RTOL)
+    assert_same_polish(r36.rms[others], r35.rms, r36.theta[others], r35.theta)
+    np.testing.assert_allclose(r36.nrmse[others], r35.nrmse, rtol=POLISH_RMS_RTOL)
+    np.testing.assert_allclose(r36.stderr[others], r35.stderr, rtol=1e-3)
     # the broken condition is flagged by its error: finite, and far above every other one
     bad = BROKEN
     print(f"\nbroken condition: rms {r36.rms[bad]:.4g} N, nrmse {r36.nrmse[bad]:.3f}, "

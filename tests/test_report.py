@@ -93,13 +93,21 @@ def test_loops_grid_measured_vs_fitted(result, batch):
         lines = ax.get_lines()
         assert len(lines) == 2  # measured, fitted
         assert lines[0].get_color() != lines[1].get_color()
-    xl = [ax.get_xlabel() for ax in axes if ax.get_xlabel()]
-    assert "x [mm]" in xl and "v [mm/s]" in xl
+    # every panel has its x label (rows are other motions), F-x above F-v
+    assert [ax.get_xlabel() for ax in axes] == ["x [mm]", "v [mm/s]"] * batch.n_conditions
     assert any(ax.get_ylabel() == "F [N]" for ax in axes)
     text = _texts(fig)
-    for i, lab in enumerate(batch.labels):
-        assert f"{lab}   RMS {result.rms[i]:.3g} N" in text
+    for i in range(batch.n_conditions):  # readable titles: "8 mm, 1 Hz, 0 A"
+        name = rp.condition_title(batch.labels[i], batch.frequency[i], batch.amplitude[i],
+                                  batch.current[i])
+        assert name == (f"{1e3 * batch.amplitude[i]:g} mm, {batch.frequency[i]:g} Hz, "
+                        f"{batch.current[i]:g} A")
+        assert f"{name}\nRMS {result.rms[i]:.3g} N" in text
     assert "measured" in text and "model" in text
+    assert rp.TANH_STEP_NOTE.split(":")[0] in text.replace("\n", " ")  # the tanh model's step
+    # a readable size: two columns of cells about 2 in wide, ticks of 7 pt
+    assert fig.get_size_inches()[0] <= 6.0
+    assert axes[0].xaxis.get_ticklabels()[0].get_fontsize() >= 7
     # the fitted line is the model force on the real (unpadded) samples
     n0 = int(batch.n_samples[0])
     f_fit = np.asarray(result.predict(batch))[0, :n0]
@@ -122,7 +130,7 @@ def test_loops_grid_max_panels_and_explicit_force(result, batch):
 def test_loops_grid_unknown_metadata_falls_back(result, unknown_batch):
     fig = rp.plot_loops_grid(result, unknown_batch, rms=[np.nan, 1, 2, 3])
     assert len(_visible(fig)) == 8
-    assert "run0   RMS -" in _texts(fig)
+    assert "run0\nRMS -" in _texts(fig)  # no metadata: the label
     _png_ok(fig)
 
 
@@ -209,12 +217,16 @@ def test_params_vs_current(result, laws):
     axes = _visible(fig)
     assert len(axes) == 6
     assert [a.get_title() for a in axes] == list(result.param_names)
-    assert axes[0].get_ylabel() == "c [N·s/m]" and axes[4].get_ylabel() == "delta"
+    assert axes[0].get_ylabel() == "c [N·s/m]" and axes[4].get_ylabel() == "delta [-]"
     assert all(a.get_xlabel() == "current [A]" for a in axes)
+    lo, hi = result.current.min(), result.current.max()
     for p, ax in enumerate(axes):
         # one error-bar series per motion, values = the parameter
         ys = np.sort(np.concatenate([c.lines[0].get_ydata() for c in ax.containers]))
         np.testing.assert_allclose(ys, np.sort(result.theta[:, p]))
+        # spread sideways, but never outside the tested currents (no marker below 0 A)
+        xs = np.concatenate([c.lines[0].get_xdata() for c in ax.containers])
+        assert lo <= xs.min() < xs.max() <= hi and len(set(xs.round(9))) == len(xs)
         curves = [ln for ln in ax.get_lines() if len(ln.get_xdata()) == 200]
         assert len(curves) == (0 if laws is None else 1)
         if curves:

@@ -15,9 +15,11 @@ import numpy as np
 import pytest
 
 from mrjax import cli, reproduce
+from mrjax._io import MANIFEST
 from mrjax.data import PAPER_COEFFICIENTS, PAPER_CURRENTS
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+REPO = Path(__file__).resolve().parents[1]
 FIGURES = {
     "fig03_data_loops.png", "fig07_loops_tanh.png", "fig08_loops_bouc_wen.png",
     "fig09_rms_vs_current.png", "fig10_generations_vs_current.png",
@@ -55,7 +57,9 @@ def again(tmp_path_factory, quick):
 
 
 def _files(d: Path) -> set[str]:
-    return {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file()}
+    """The study's outputs in `d` (the manifest `mrjax._io.MANIFEST` left out)."""
+    return {p.relative_to(d).as_posix() for p in d.rglob("*")
+            if p.is_file() and p.name != MANIFEST}
 
 
 def test_every_file_is_written(quick):
@@ -146,6 +150,45 @@ def test_acceptance_facts(quick):
     assert doc["generalized"]["two-step"]["total_rms_N"] < 22.0
 
 
+def _readme_quick_ranges() -> dict[str, tuple[tuple[float, float], tuple[float, float]]]:
+    """The README's table of `mrjax reproduce --quick` numbers: run title -> ((RMS low, high),
+    (generations low, high)); a single number `v` printed with d decimals is v +- half its
+    last digit."""
+    lines = (REPO / "README.md").read_text(encoding="utf-8").splitlines()
+    start = next(k for k, ln in enumerate(lines) if "reproduce-quick-ranges" in ln)
+
+    def span(cell: str) -> tuple[float, float]:
+        lo, _, hi = cell.strip().replace("–", "-").partition("-")
+        if hi:
+            return float(lo), float(hi)
+        half = 0.5 * 10.0 ** -len(lo.partition(".")[2])
+        return float(lo) - half, float(lo) + half
+
+    out = {}
+    for ln in lines[start + 3:]:
+        if not ln.startswith("|"):
+            break
+        title, rms, gens = (c.strip() for c in ln.strip("|").split("|"))
+        out[title] = (span(rms), span(gens))
+    return out
+
+
+def test_readme_quick_numbers_hold(quick):
+    """The numbers the README states for `mrjax reproduce --quick` (ranges that hold on any
+    CPU; a single number to its printed digits) are what this run gives."""
+    _, _, _, doc = quick
+    ranges = _readme_quick_ranges()
+    assert set(ranges) == {reproduce.RUN_TITLES[k] for k in QUICK_RUNS}
+    for key in QUICK_RUNS:
+        run = doc["runs"][key]
+        (rlo, rhi), (glo, ghi) = ranges[run["title"]]
+        assert rlo <= run["median_rms_N"] <= rhi, (key, run["median_rms_N"], (rlo, rhi))
+        assert glo <= run["median_generations"] <= ghi, (key, run["median_generations"])
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    worst = doc["acceptance"]["c_coefficients"]["max_abs_error_pct"]
+    assert f"within {worst:.2f} % (quick)" in readme, worst
+
+
 def test_same_seed_same_numbers(quick, again):
     out1, _, _, doc1 = quick
     out2, doc2 = again
@@ -160,7 +203,7 @@ def test_same_seed_same_numbers(quick, again):
 
 def test_cli_default_output_directory():
     args = cli.build_parser().parse_args(["reproduce"])
-    assert args.out == "mrjax-out" and args.seed == 0 and not args.quick and args.data is None
+    assert args.out == "mrjax-out/reproduce" and args.seed == 0 and not args.quick and args.data is None
 
 
 def test_missing_data_directory_fails_before_any_work(tmp_path):

@@ -11,7 +11,7 @@ mrjax compare DATA... [--models all|kwok,...] [--hold-out current=0.25,0.75 | --
               --validate FILES] [--out DIR]        rank every model: criteria + held-out laws
 mrjax inspect DATA... [data options] [--out DIR]    what is read: one line per test + a figure
 mrjax reproduce [--quick]                           the paper's study on the embedded data
-mrjax models                                        models, parameters, units, default bounds
+mrjax models                                        models, aliases, parameters, units, bounds
 ```
 
 `fit`, `predict`, `compare` and `inspect` share the data options, for files with their own
@@ -19,9 +19,16 @@ column names, units and layouts: `--spec FILE.toml` and the flags `--columns`, `
 `--sample-rate`, `--current`, `--frequency`, `--amplitude`, `--label`, `--velocity-window`,
 which override single keys of the spec file (`mrjax.data.DataSpec`).
 
+Outputs: each command writes into its own directory (default `mrjax-out/COMMAND`), which holds
+that command's outputs only (a directory of another command, or with other files, is refused
+unless `--overwrite`), written atomically (all of them or none) by one run at a time (a second
+run into the same directory is refused at once).
+
 Errors in the input (missing or malformed files, unknown models, bad options, unwritable
 output) print one line `mrjax: error: ...` on stderr and exit with code 2; `--debug` shows the
-traceback instead. Ctrl-C exits with 130. Outputs are written atomically: all of them or none.
+traceback instead. A mistyped option, command or model name is answered with the closest
+one. Ctrl-C exits with 130. Building the parser imports nothing heavy: `mrjax --help` answers
+at once.
 """
 
 from ._main import CACHE_ENV as CACHE_ENV

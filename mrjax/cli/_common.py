@@ -1,13 +1,12 @@
-"""Helpers shared by the `mrjax` commands: messages, argument types, the data options and
-data loading."""
+"""Helpers shared by the `mrjax` commands when they run: bounds, the data spec of the data
+options, data loading, figures and fit.json reading (the parser's light helpers are in
+`_parse`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
-import sys
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -16,99 +15,8 @@ import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, Condition, DataSpec, describe, find_files, load, make_batch
-from ..fitting import parse_memory
 from ..models import AbstractModel, check_bounds
-
-DEFAULT_OUT = "mrjax-out"
-
-
-def say(msg: str) -> None:
-    """A short stage line on stderr (the table and results go to stdout)."""
-    print(f"mrjax: {msg}", file=sys.stderr, flush=True)
-
-
-def one_line(e: BaseException) -> str:
-    """The message of an error as one line (OSError: `file: reason`)."""
-    if isinstance(e, OSError) and not isinstance(e, InputError) and e.strerror:
-        msg = f"{e.filename}: {e.strerror}" if e.filename else e.strerror
-    else:
-        msg = str(e) or type(e).__name__
-    return " ".join(msg.split())
-
-
-def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings as one line `mrjax: warning: ...` on stderr."""
-    print(f"mrjax: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
-
-
-def _int_at_least(text: str, low: int, what: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    if v < low:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {v}")
-    return v
-
-
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    return _int_at_least(text, 1, "a positive integer")
-
-
-def nonneg_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    return _int_at_least(text, 0, "a non-negative integer")
-
-
-def memory_size(text: str) -> int:
-    """argparse type: a memory size such as `8GB`, `512MB` (see `mrjax.fitting.parse_memory`)."""
-    try:
-        return parse_memory(text)
-    except InputError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-
-
-def device_count(text: str) -> int | str:
-    """argparse type: `all` or a positive number of devices."""
-    if text.strip().lower() == "all":
-        return "all"
-    return _int_at_least(text, 1, "a positive number of devices or 'all'")
-
-
-def add_scale_options(parser: argparse.ArgumentParser, *, journal: bool) -> None:
-    """`--memory`, `--devices` (and for `mrjax fit`, `--chunk-size` and `--resume`): how a
-    fit of many tests uses the machine; none of them changes the results."""
-    g = parser.add_argument_group(
-        "many tests", "how the fit uses the machine; the results do not depend on these "
-        "(see 'Thousands of tests' in the README)")
-    g.add_argument("--memory", type=memory_size, metavar="SIZE",
-                   help="memory budget, e.g. 8GB or 512MB: the tests are fitted in chunks "
-                   "whose estimated memory fits it (default: half of the available memory)")
-    g.add_argument("--devices", type=device_count, metavar="N|all",
-                   help="shard each chunk's tests over the first N local JAX devices, or all "
-                   "(default one; on a CPU, set XLA_FLAGS=--xla_force_host_platform_device_"
-                   "count=N to expose N devices)")
-    if journal:
-        g.add_argument("--chunk-size", type=positive_int, metavar="N",
-                       help="tests per chunk instead of --memory")
-        g.add_argument("--resume", action="store_true",
-                       help="reuse the chunks an interrupted run left in DIR/.mrjax-journal "
-                       "(same data and options required) and fit only the missing ones")
-
-
-def transient(text: str) -> float | str:
-    """argparse type: seconds >= 0 or `cycle`."""
-    if text.strip().lower() == "cycle":
-        return "cycle"
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected seconds (e.g. 0.5) or 'cycle', got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected non-negative seconds, got {text!r}")
-    return v
+from ._parse import DATA_FLAGS, say
 
 
 def parse_bounds(items: list[str] | None, model: AbstractModel) -> tuple[dict, dict] | None:
@@ -144,65 +52,6 @@ def parse_bounds(items: list[str] | None, model: AbstractModel) -> tuple[dict, d
 
 # --------------------------------------------------------------------------------------------
 # Data options: one data spec (`mrjax.data.DataSpec`) from --spec and flags
-
-
-#: The data flags and the `DataSpec.from_options` argument each one sets.
-DATA_FLAGS: dict[str, str] = {
-    "columns": "--columns", "wide": "--wide", "sample_rate": "--sample-rate",
-    "current": "--current", "frequency": "--frequency", "amplitude": "--amplitude",
-    "label": "--label", "velocity_window": "--velocity-window",
-}
-
-
-def add_data_options(parser: argparse.ArgumentParser) -> None:
-    """Add the data options (where each signal is, in which unit, and what the files cannot
-    say) to a sub-command's parser: `--spec FILE.toml` and the flags of
-    `mrjax.data.DataSpec.from_options`, which override single keys of the spec file.
-
-    **Arguments:** `parser`: the sub-command's parser; :func:`data_spec` reads the result.
-    """
-    g = parser.add_argument_group(
-        "data options",
-        "How to read files with their own column names, units and layouts (default: each "
-        "format's conventions: long CSV with unit-suffixed headers, UTFSM txt t x v F, "
-        "metadata from names like 25mm0x1Hz0x75A). UNIT is any unit of the right dimension "
-        "(s, ms; m, mm, cm, in; mm/s, cm/s, in/s; N, kN, lbf; A, mA; V for a command). "
-        "The flags override single keys of --spec. Check a spec with `mrjax inspect`.")
-    g.add_argument("--spec", metavar="FILE.toml",
-                   help="data spec file: [columns], [meta], [wide], [files], [velocity] (see "
-                   "the README, 'Your own files')")
-    g.add_argument("--columns", metavar="ROLE=SOURCE:UNIT,...",
-                   help="where each signal is: ROLE is time, displacement, velocity, force, "
-                   "current (measured, per sample), command (per-sample current or voltage), "
-                   "frequency, amplitude or condition; SOURCE a CSV header, a .mat variable, "
-                   "name[k] (column k, 0-based, of a 2-D .mat variable) or a bare k (column k "
-                   "of a headerless text file or of the only .mat matrix); e.g. "
-                   "time=t:s,displacement=x:cm,velocity=v:cm/s,force=F:N,command=V:V")
-    g.add_argument("--wide", metavar="ROLE=SOURCE,...:UNIT",
-                   help="one test per column: the columns of ROLE, one per test, a unit on "
-                   "the last one applying to all, e.g. force=1,2,3,4,5:N (several roles: "
-                   "separate by ';'); the roles of --columns are shared by all tests")
-    g.add_argument("--sample-rate", metavar="HZ",
-                   help="sample rate when there is no time column, e.g. 1000 or '1 kHz' "
-                   "(or FILE=HZ,...)")
-    g.add_argument("--current", metavar="A",
-                   help="coil current of the tests: one value (0.5, '500 mA'), one per "
-                   "column of --wide (0,0.25,0.5), or per file (FILE=A,...; FILE may be a "
-                   "glob pattern, e.g. ensaio.B.1.mat=0.5,ensaio.B.2.mat=1)")
-    g.add_argument("--frequency", metavar="HZ",
-                   help="excitation frequency, given like --current (default: from the file "
-                   "or its name; with data options, else estimated from the displacement "
-                   "spectrum and reported as an estimate)")
-    g.add_argument("--amplitude", metavar="M",
-                   help="displacement amplitude in m or with a unit ('8 mm'), given like "
-                   "--current (default: as --frequency; the estimate is half the range)")
-    g.add_argument("--label", metavar="NAME",
-                   help="test label(s), given like --current (default: the CSV condition "
-                   "column or the file name, with _k for the k-th --wide column)")
-    g.add_argument("--velocity-window", metavar="SECONDS",
-                   help="window of the velocity estimated from displacement (when no velocity "
-                   "column is read), e.g. 0.02 or '20 ms' (default: chosen from the bandwidth "
-                   "of each record)")
 
 
 def data_spec(args: argparse.Namespace) -> DataSpec | None:

@@ -9,27 +9,21 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, check_writable, json_bytes
+from .._io import OutputDir, json_bytes
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import fit_mask
 from ..fitting import fit
-from ..generalize import LAW_KINDS, GeneralizedModel, generalize, identify
-from ..models import get
+from ..generalize import GeneralizedModel, generalize, identify
+from ..models import get, source_of
 from ._common import (
-    DEFAULT_OUT,
-    add_data_options,
-    add_scale_options,
     data_spec,
     force_figures,
     load_batch,
-    nonneg_int,
     parse_bounds,
-    positive_int,
-    say,
     say_estimates,
-    transient,
     use_agg,
 )
+from ._parse import say
 
 #: Where `mrjax fit` keeps the finished chunks of a run, inside its output directory.
 JOURNAL = ".mrjax-journal"
@@ -59,9 +53,9 @@ def figures(result, batch, gm) -> dict[str, bytes]:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run `mrjax fit` with parsed arguments; returns the exit code."""
-    out = check_writable(args.out)
+def run(args: argparse.Namespace, out: OutputDir) -> int:
+    """Run `mrjax fit` with parsed arguments into the claimed directory `out`; returns the exit
+    code."""
     model = get(args.model)
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
@@ -91,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     C = batch.n_conditions
     how = args.method if args.method == "lm" else f"{args.method}, {args.swarm} swarm"
     say(f"fitting {model.name} on {C} condition{'s' if C != 1 else ''} ({how})...")
-    journal = out / JOURNAL
+    journal = out.path / JOURNAL
     result = fit(
         model, batch, method=args.method, swarm_mode=args.swarm, seed=args.seed,
         n_particles=args.particles,
@@ -112,13 +106,16 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_plots:
         say("drawing figures...")
         files.update(figures(result, batch, gm))
-    say(f"writing {len(files)} files to {out}...")
-    atomic_output(out, files)
+    say(f"writing {len(files)} files to {out.path}...")
+    out.write(files)
     shutil.rmtree(journal, ignore_errors=True)  # the outputs hold everything it held
-    print(result.table(max_rows=args.max_rows))
+    print(result.table(max_rows=args.max_rows))  # ends with the per-test warnings
     if gm is not None:
         print()
         print(gm.summary())
+        for w in result.warnings(gm):
+            if w["kind"] == "too_few_currents":
+                print(f"warning: {w['message']}")
     return 0
 
 
@@ -143,55 +140,6 @@ def _voltage_command(batch) -> bool:
     return any(COMMAND_UNITS_BY_KIND[k] == "V" for _, k, _ in _command_rows(batch))
 
 
-def parse_lag(text: str) -> str | float | None:
-    """`--lag`: `fit`, `none` or a rate eta [1/s] of the command filter du/dt = -eta (u - v)."""
-    t = text.strip().lower()
-    if t in ("fit", "none"):
-        return None if t == "none" else "fit"
-    try:
-        v = float(t)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected 'fit', 'none' or a rate in 1/s, got {text!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"the lag rate must be positive (1/s), got {text!r}")
-    return v
-
-
-def parse_degrees(text: str) -> dict[str, int]:
-    """`--degrees`: `NAME=DEG,...`, the polynomial degree of each named parameter's law."""
-    out: dict[str, int] = {}
-    for item in text.split(","):
-        name, sep, deg = item.partition("=")
-        try:
-            d = int(deg)
-        except ValueError:
-            d = -1
-        if not sep or not name.strip() or d < 0:
-            raise argparse.ArgumentTypeError(
-                f"expected NAME=DEG,... with DEG a non-negative integer, got {item!r}")
-        out[name.strip()] = d
-    return out
-
-
-def parse_laws(text: str) -> str | dict[str, str]:
-    """`--laws`: `auto` (every law's form chosen by the data), `fixed` (the model's default
-    degrees) or `NAME=KIND,...` with KIND one of `poly`, `exp`, `sat`."""
-    if text.strip().lower() in ("auto", "fixed"):
-        return text.strip().lower()
-    out: dict[str, str] = {}
-    for item in text.split(","):
-        name, sep, kind = item.partition("=")
-        kind = kind.strip().lower()
-        if not sep or not name.strip() or kind not in LAW_KINDS:
-            raise argparse.ArgumentTypeError(
-                f"expected 'auto', 'fixed' or NAME=KIND,... with KIND one of "
-                f"{', '.join(LAW_KINDS)}, "
-                f"got {item!r}")
-        out[name.strip()] = kind
-    return out
-
-
 def laws_csv(gm: GeneralizedModel) -> str:
     """The laws as CSV: one row per coefficient (parameter, power of the command, value,
     std-error, unit of the parameter, command unit), then the lag rate."""
@@ -209,7 +157,7 @@ def laws_csv(gm: GeneralizedModel) -> str:
     return "\n".join(rows) + "\n"
 
 
-def _run_identify(args, model, bounds, batch, out) -> int:
+def _run_identify(args, model, bounds, batch, out: OutputDir) -> int:
     """`mrjax fit` on records with a command voltage or a time-varying current: the laws of the
     command identified from every record at once (`mrjax.generalize.identify`)."""
     C = batch.n_conditions
@@ -226,7 +174,8 @@ def _run_identify(args, model, bounds, batch, out) -> int:
     ev = gm.evaluate(batch)
     conds = [{"label": lab, "rms_N": float(r), "nrmse": float(n)}
              for lab, r, n in zip(batch.labels, ev["rms"], ev["nrmse"])]
-    doc = {"model": model.name, "mrjax_version": __version__, "method": "identify",
+    doc = {"model": model.name, "model_source": source_of(model),
+           "mrjax_version": __version__, "method": "identify",
            "command_unit": gm.command_unit, "lag_1_s": gm.lag,
            "timings_s": gm.info.get("timings"), "conditions": conds,
            "generalized": gm.to_dict()}
@@ -237,81 +186,10 @@ def _run_identify(args, model, bounds, batch, out) -> int:
         from .. import report as rp  # imported here: matplotlib only when figures are drawn
 
         files.update(rp.command_figures(gm, batch, np.asarray(ev["predicted"], float)))
-    say(f"writing {len(files)} files to {out}...")
-    atomic_output(out, files)
+    say(f"writing {len(files)} files to {out.path}...")
+    out.write(files)
     for c in conds:
         print(f"{c['label']}: RMS {c['rms_N']:.2f} N, NRMSE {100 * c['nrmse']:.2f} %")
     print()
     print(gm.summary())
     return 0
-
-
-def add_parser(sub, common: argparse.ArgumentParser) -> None:
-    """Register `mrjax fit` and its options."""
-    p = sub.add_parser(
-        "fit", parents=[common], help="identify a model on every test condition",
-        description="Fit one model to every test in the given files at once and write fit.json, "
-        "fit.csv and figures into --out (atomically: all files or none): F-x and F-v loops of "
-        "periodic tests, force against time (whole, zoomed, residual) of random records. Many "
-        "tests are fitted in chunks that fit --memory; each finished chunk is kept in "
-        "DIR/.mrjax-journal until the outputs are written, so that an interrupted run "
-        "continues with --resume.")
-    p.add_argument("files", nargs="+", metavar="FILE",
-                   help="data files or directories (.csv, .txt/.dat, .mat; any layout with "
-                   "the data options below)")
-    p.add_argument("--model", required=True, metavar="NAME",
-                   help="model name: bingham, kwok (tanh), bouc_wen, modified_bouc_wen, dahl "
-                   "(see `mrjax models`)")
-    p.add_argument("--method", choices=("pso", "pso+lm", "lm"), default="pso+lm",
-                   help="swarm, swarm then Levenberg-Marquardt polish (default), or polish alone")
-    p.add_argument("--swarm", choices=("separable", "full"), default="separable",
-                   help="separable: variable projection over the linear parameters (default); "
-                   "full: the paper's swarm over all parameters")
-    p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
-                   help="independent swarms per test, best one polished (default 1; 2 for "
-                   "an ODE model on a single test)")
-    p.add_argument("--no-retry", action="store_true",
-                   help="do not polish each test again from its neighbours' optima (the "
-                   "default retry finds the optima one swarm misses and warns where the two "
-                   "results disagree)")
-    p.add_argument("--swarm-dtype", choices=("float64", "float32"), default=None,
-                   help="precision of the swarm's search (default float64; float32 is about "
-                   "twice as fast; the polish and the results stay float64)")
-    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default 0)")
-    p.add_argument("--generations", type=positive_int, metavar="N",
-                   help="run exactly N swarm generations (no statistical stop)")
-    p.add_argument("--max-generations", type=positive_int, metavar="N",
-                   help="cap on swarm generations with the statistical stop (default 200)")
-    p.add_argument("--particles", type=positive_int, default=50, metavar="N",
-                   help="swarm size (default 50)")
-    p.add_argument("--transient", type=transient, metavar="SECONDS|cycle",
-                   help="leave an initial span out of the fitness: seconds or 'cycle'")
-    p.add_argument("--bounds", action="append", metavar="NAME=LO:HI",
-                   help="search bounds of one parameter in SI units, e.g. c=500:5000 (repeatable; "
-                   "an empty LO or HI keeps the default; see `mrjax models`)")
-    p.add_argument("--generalize", choices=("two-step", "joint"),
-                   help="also fit current-dependent laws of the parameters; records with a "
-                   "command voltage or a time-varying current need 'joint' (the laws are then "
-                   "identified from every record at once)")
-    p.add_argument("--degrees", type=parse_degrees, metavar="NAME=DEG,...",
-                   help="polynomial degree of the named parameters' laws of the current or "
-                   "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
-                   "linear in a command voltage)")
-    p.add_argument("--laws", type=parse_laws, metavar="auto|fixed|NAME=KIND,...",
-                   help="form of the laws of --generalize: 'auto' (default for laws of the "
-                   "current) chooses each parameter's among polynomial degree 0-2, "
-                   "exponential and saturating by the lowest BIC of the per-test values (shown "
-                   "in the summary and fit.json; --degrees fixes the named ones); 'fixed': the "
-                   "model's default degrees (default for a time-varying command); NAME=KIND "
-                   "with KIND poly, exp or sat, the others fixed")
-    p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
-                   help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
-                   "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
-                   help=f"output directory (default ./{DEFAULT_OUT})")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
-    p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
-                   help="print at most N rows of the result table (default all)")
-    add_scale_options(p, journal=True)
-    add_data_options(p)
-    p.set_defaults(func=run)

@@ -7,17 +7,10 @@ import warnings
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, check_writable, json_bytes
+from .._io import OutputDir, json_bytes
 from ..data import ConditionReport, describe, find_files
-from ._common import (
-    DEFAULT_OUT,
-    add_data_options,
-    data_spec,
-    load_conditions,
-    positive_int,
-    say,
-    use_agg,
-)
+from ._common import data_spec, load_conditions, use_agg
+from ._parse import say
 
 
 def _who(labels: list[str], n_all: int) -> str:
@@ -52,9 +45,9 @@ def text(reports: list[ConditionReport], notes: list[str], n_files: int) -> str:
     return "\n".join(lines)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run `mrjax inspect` with parsed arguments; returns the exit code."""
-    out = check_writable(args.out)
+def run(args: argparse.Namespace, out: OutputDir) -> int:
+    """Run `mrjax inspect` with parsed arguments into the claimed directory `out`; returns the
+    exit code."""
     spec = data_spec(args)
     files = find_files(args.files)
     with warnings.catch_warnings(record=True) as caught:
@@ -87,27 +80,7 @@ def run(args: argparse.Namespace) -> int:
             f" and {len(names) - 3} more file(s)" if len(names) > 3 else "")
         outputs["inspect.png"] = rp.save_png_bytes(
             rp.plot_records(conditions, max_panels=args.max_panels, title=title))
-    say(f"writing {len(outputs)} files to {out}...")
-    atomic_output(out, outputs)
+    say(f"writing {len(outputs)} files to {out.path}...")
+    out.write(outputs)
     print(text(reports, notes, len(files)))
     return 0
-
-
-def add_parser(sub, common: argparse.ArgumentParser) -> None:
-    """Register `mrjax inspect` and its options."""
-    p = sub.add_parser(
-        "inspect", parents=[common], help="show what mrjax reads from files (check a data spec)",
-        description="Read the files as `mrjax fit` would and print one line per test: samples, "
-        "rate, duration, ranges with units, frequency and amplitude (~ marks an estimate), "
-        "velocity measured or estimated, current or command, warnings; then the loader's "
-        "notes (skipped lines, unused columns). Writes inspect.png (every signal against "
-        "time), inspect.json and, when data options were given, spec.toml (the effective "
-        "spec, reusable with --spec) into --out, atomically.")
-    p.add_argument("files", nargs="+", metavar="FILE", help="data files or directories")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
-                   help=f"output directory (default ./{DEFAULT_OUT})")
-    p.add_argument("--max-panels", type=positive_int, default=12, metavar="N",
-                   help="at most N tests in inspect.png, evenly spread (default 12)")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figure")
-    add_data_options(p)
-    p.set_defaults(func=run)

@@ -9,21 +9,19 @@ import numpy as np
 
 from .. import __version__
 from .._errors import InputError
-from .._io import atomic_output, check_writable, csv_cell, json_bytes, json_safe
+from .._io import OutputDir, csv_cell, json_bytes, json_safe
 from .._tables import format_table
 from ..data import ESTIMATED_FIELDS
 from ..generalize import GeneralizedModel
 from ._common import (
-    DEFAULT_OUT,
-    add_data_options,
     data_spec,
     force_figures,
     load_batch,
     read_fit_json,
-    say,
     say_estimates,
     use_agg,
 )
+from ._parse import say
 
 _GEN_HINT = "run `mrjax fit DATA... --model NAME --generalize two-step` first"
 
@@ -60,13 +58,15 @@ def _table(rows: list[dict], model: str) -> str:
     return table + f"\ngeneralized {model}: {len(rows)} conditions, median RMS {med:.2f} N"
 
 
-def _read_model(path: str) -> tuple[GeneralizedModel, str]:
+def _read_model(path: str, model: str | None = None) -> tuple[GeneralizedModel, str]:
     doc = read_fit_json(path)
     if "generalized" not in doc:
         raise InputError(f"{path}: this fit has no current-dependent laws ('generalized' "
                          f"block); {_GEN_HINT}")
     try:
-        gm = GeneralizedModel.from_dict(doc["generalized"])
+        block = dict(doc["generalized"])
+        block.setdefault("model_source", doc.get("model_source"))
+        gm = GeneralizedModel.from_dict(block, model=model)
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
     except (KeyError, TypeError, ValueError) as e:
@@ -74,10 +74,10 @@ def _read_model(path: str) -> tuple[GeneralizedModel, str]:
     return gm, str(doc.get("model", "model"))
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run `mrjax predict` with parsed arguments; returns the exit code."""
-    out = check_writable(args.out)
-    gm, model = _read_model(args.fit)
+def run(args: argparse.Namespace, out: OutputDir) -> int:
+    """Run `mrjax predict` with parsed arguments into the claimed directory `out`; returns the
+    exit code."""
+    gm, model = _read_model(args.fit, args.model)
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)
@@ -103,25 +103,7 @@ def run(args: argparse.Namespace) -> int:
                               amplitude=batch.amplitude, rms=rms, labels=batch.labels)
         files["predict_rms_vs_current.png"] = rp.save_png_bytes(
             rp.plot_rms_vs_current({f"generalized {model}": pts}))
-    say(f"writing {len(files)} files to {out}...")
-    atomic_output(out, files)
+    say(f"writing {len(files)} files to {out.path}...")
+    out.write(files)
     print(_table(rows, model))
     return 0
-
-
-def add_parser(sub, common: argparse.ArgumentParser) -> None:
-    """Register `mrjax predict` and its options."""
-    p = sub.add_parser(
-        "predict", parents=[common], help="evaluate fitted current-dependent laws on tests",
-        description="Predict the force of other tests from the current-dependent laws in a "
-        "fit.json written by `mrjax fit --generalize`; write predict.json, predict.csv and "
-        "figures (loops of periodic tests, force against time of random records).")
-    p.add_argument("--fit", required=True, metavar="FIT.json",
-                   help="fit.json of `mrjax fit --generalize` (or its directory)")
-    p.add_argument("files", nargs="+", metavar="FILE",
-                   help="data files or directories (any layout with the data options below)")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
-                   help=f"output directory (default ./{DEFAULT_OUT})")
-    p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
-    add_data_options(p)
-    p.set_defaults(func=run)

@@ -13,7 +13,7 @@ from .._errors import InputError
 from ..data import Batch, as_batch, fit_mask, make_batch
 from ..fitting import FitResult, fit
 from ..generalize import generalize
-from ..models import check_bounds, get, names
+from ..models import AbstractModel, check_bounds, get, names
 from ._criteria import information_criteria, n_free_parameters
 from ._folds import Plan, plan_validation
 from ._result import CompareResult
@@ -30,22 +30,24 @@ GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "swarm", "polish", "n_part
 GENERALIZE_METHODS = ("two-step", "joint")
 
 
-def _model_names(models: str | Sequence[str]) -> tuple[str, ...]:
+def _models(models: str | Sequence[Any]) -> dict[str, AbstractModel]:
+    """The models to compare by name, in the order given: names, places
+    (`path/file.py:Name`) or model objects (a user's model need not be registered)."""
     if isinstance(models, str):
         if models.strip().lower() == "all":
-            return names()
+            return {n: get(n) for n in names()}
         models = [m for m in models.split(",")]
-    out = []
+    out: dict[str, AbstractModel] = {}
     for m in models:
         if isinstance(m, str) and not m.strip():
             raise InputError(f"empty model name in the model list {models!r}")
-        name = get(m).name  # InputError for an unknown model
-        if name in out:
-            raise InputError(f"model {name!r} is listed twice")
-        out.append(name)
+        model = get(m)  # InputError for an unknown model
+        if model.name in out:
+            raise InputError(f"model {model.name!r} is listed twice")
+        out[model.name] = model
     if not out:
         raise InputError("no model to compare")
-    return tuple(out)
+    return out
 
 
 def _checked_options(given: Mapping[str, Any], allowed: Sequence[str], what: str) -> dict:
@@ -71,17 +73,18 @@ def _checked_methods(methods: str | Sequence[str] | None) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _checked_bounds(bounds: Mapping[str, Any] | None, models: tuple[str, ...]) -> dict:
+def _checked_bounds(bounds: Mapping[str, Any] | None, models: dict[str, AbstractModel]) -> dict:
     if bounds is None:
         return {}
     if not isinstance(bounds, Mapping):
         raise InputError("bounds must map a model name to its (lower, upper) bounds")
     out = {}
     for name, b in bounds.items():
-        key = get(name).name
+        key = str(name).strip().lower() if str(name).strip().lower() in models else \
+            get(name).name
         if key not in models:
             raise InputError(f"bounds given for model {key!r}, which is not compared")
-        check_bounds(get(key), b)
+        check_bounds(models[key], b)
         out[key] = b
     return out
 
@@ -163,7 +166,8 @@ def compare(
     **Arguments:**
 
     - `data`: the tests (a `mrjax.data.Batch`, condition(s), or file/directory path(s)).
-    - `models`: `"all"` (every registered model), a list of names, or `"kwok,bouc_wen"`.
+    - `models`: `"all"` (every model of `mrjax.models.names`), a list of names, places
+        (`"path/to/file.py:Name"`) or model objects, or `"kwok,bouc_wen"`.
     - `validate`, `hold_out`, `folds`: the held-out tests, see above.
     - `generalize_methods`: `"two-step"` and/or `"joint"` (default both); `()` or None: no
         held-out validation.
@@ -191,7 +195,8 @@ def compare(
     """
     t_all = time.perf_counter()
     say = log if log is not None else (lambda msg: None)
-    model_names = _model_names(models)
+    by_name = _models(models)
+    model_names = tuple(by_name)
     if "key" in fit_options:
         raise InputError("compare takes seed= (the same for every model), not key=")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -199,7 +204,7 @@ def compare(
     fit_options = _checked_options(fit_options, FIT_OPTIONS, "fit")
     gen_options = _checked_options(generalize_options or {}, GENERALIZE_OPTIONS, "generalize")
     methods = _checked_methods(generalize_methods)
-    bounds = _checked_bounds(bounds, model_names)
+    bounds = _checked_bounds(bounds, by_name)
     batch = as_batch(data)
     source = as_batch(validate) if validate is not None else batch
     plan = plan_validation(batch, validate=source if validate is not None else None,
@@ -207,7 +212,7 @@ def compare(
     if not plan.folds:
         methods = ()
     transient = fit_options.get("transient")
-    k = np.array([n_free_parameters(m, bounds.get(m)) + 1 for m in model_names])
+    k = np.array([n_free_parameters(by_name[m], bounds.get(m)) + 1 for m in model_names])
     C, M, G = batch.n_conditions, len(model_names), len(methods)
     H = sum(f.test.size for f in plan.folds)
     fits: dict[str, FitResult] = {}
@@ -216,7 +221,7 @@ def compare(
     for i, name in enumerate(model_names):
         say(f"[{i + 1}/{M}] {name}: fitting {C} test{'s' if C != 1 else ''}...")
         t0 = time.perf_counter()
-        res = fit(name, batch, seed=seed, bounds=bounds.get(name), **fit_options)
+        res = fit(by_name[name], batch, seed=seed, bounds=bounds.get(name), **fit_options)
         t1 = time.perf_counter()
         if G:
             say(f"[{i + 1}/{M}] {name}: generalizing over {len(plan.folds)} "

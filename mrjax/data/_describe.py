@@ -13,6 +13,10 @@ from ._condition import Batch, Condition
 from ._spectrum import estimate_motion
 from ._velocity import velocity_window
 
+#: A given (nominal) amplitude further than this fraction from the measured half range is
+#: shown beside it.
+NOMINAL_TOL = 0.02
+
 
 @dataclasses.dataclass(frozen=True)
 class ConditionReport:
@@ -32,6 +36,9 @@ class ConditionReport:
         `broadband`: no single frequency describes the motion (see
         `mrjax.data.VelocityWindow`).
     - `notes`: what the loader tolerated or decided; `warnings`: sanity warnings.
+    - `amplitude_measured` [m]: half the displacement's range, what the record shows (a
+        nominal `amplitude` from a file name such as `2mm5Hz0A` may differ: the line then
+        shows both).
     """
 
     label: str
@@ -54,6 +61,7 @@ class ConditionReport:
     broadband: bool
     notes: tuple[str, ...]
     warnings: tuple[str, ...]
+    amplitude_measured: float | None = None
 
     def line(self) -> str:
         """One line: samples, rate, duration, ranges with units, frequency and amplitude
@@ -68,6 +76,10 @@ class ConditionReport:
         f = "f ?" if self.frequency is None else "f " + est("frequency", f"{self.frequency:.4g} Hz")
         a = "A ?" if self.amplitude is None else "A " + est("amplitude",
                                                              f"{self.amplitude * 1e3:.4g} mm")
+        am = self.amplitude_measured
+        if (self.amplitude is not None and "amplitude" not in self.estimated and am is not None
+                and abs(am - self.amplitude) > NOMINAL_TOL * self.amplitude):
+            a += f" nominal, {am * 1e3:.4g} mm measured (half the range)"
         if self.command_unit is not None:
             drive = f"command {rng(self.command_range, 1.0, self.command_unit)}"
         elif self.current is not None:
@@ -140,5 +152,6 @@ def describe(conditions: Sequence[Condition] | Batch | Condition) -> list[Condit
             command_range=None if c.command is None else _range(c.command),
             bandwidth_Hz=vw.bandwidth_Hz, broadband=vw.broadband,
             notes=c.notes, warnings=tuple(warns),
+            amplitude_measured=0.5 * float(np.max(c.x) - np.min(c.x)),
         ))
     return out

@@ -17,7 +17,7 @@ from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
-from ..models import AbstractModel, resolve_model
+from ..models import AbstractModel, resolve_model, source_of
 from ._retry import spread_warnings
 
 
@@ -54,6 +54,9 @@ class FitResult:
     - `estimated` (C, 3) bool: whether each condition's `xdot`, `frequency`, `amplitude` (the
         columns of `mrjax.data.ESTIMATED_FIELDS`) were estimated rather than read, as
         `Batch.estimated`; `None` when not known.
+    - `bounds`: the search box, `{"lower": (P,), "upper": (P,)}` [SI], shared by all
+        conditions (a dict, so that per-condition slicing leaves it whole); `None` when not
+        known. :meth:`warnings` uses it.
     - `starts_rms` (C, S) [N]: the RMS on the full record of each polished start (the swarm's,
         then the retry's from a neighbour's optimum, `mrjax.Polish(retry=True)`); `rms` is
         their minimum; a spread above `mrjax.fitting.SPREAD_MARGIN` is warned about (a
@@ -84,6 +87,7 @@ class FitResult:
     identifiable: np.ndarray
     timings: dict[str, float]
     estimated: np.ndarray | None = None
+    bounds: dict[str, Any] | None = None
     starts_rms: np.ndarray | None = None
 
     @property
@@ -215,7 +219,28 @@ class FitResult:
         return (format_table(rows, head, floatfmt=fmt)
                 + f"\n{self.model.name} ({self.method}, {self.swarm_mode}): {self.n_conditions} "
                 f"conditions, median RMS {med:.2f} N, median NRMSE {100 * medn:.2f} %"
-                + "".join(f"\nwarning: {w['message']}" for w in spread_warnings(self)))
+                + "".join(f"\nwarning: {w['message']}" for w in self.warnings()))
+
+    def warnings(self, generalized: Any = None) -> list[dict[str, Any]]:
+        """What makes these results doubtful, as lmfit's fit report says it: one entry per
+        kind, `{"kind", "message", "conditions": [labels], "parameters": [names]}`.
+
+        - `"at_bound"`: a parameter within `AT_BOUND` (0.5 %) of the search box's width of one
+            of its bounds and, where it has a std-error, within 1.96 std-errors of it (equal
+            bounds, a fixed parameter, excepted): the optimum may lie outside the box.
+        - `"not_identifiable"`: a parameter on a numerically null direction of $J^T J$ or
+            correlated above `mrjax.refine.CORR_LIMIT` with another (its std-error is null).
+        - `"local_optimum"`: tests whose polished starts (the swarm's and the retry's from a
+            neighbour's optimum, `starts_rms`) end more than `mrjax.fitting.SPREAD_MARGIN`
+            apart (`mrjax.fitting.spread_warnings`).
+        - `"too_few_currents"` (with `generalized`, a `GeneralizedModel` of these fits): laws
+            whose degree needs more distinct currents than the tests have
+            (`GeneralizedModel.law_warnings`).
+
+        **Returns:** the list (empty when nothing is doubtful); also `fit.json`'s `"warnings"`
+        and the last lines of :meth:`table`.
+        """
+        return _warnings(self, generalized)
 
     def __repr__(self) -> str:
         return (f"FitResult(model={self.model.name!r}, method={self.method!r}, "
@@ -253,6 +278,7 @@ class FitResult:
             })
         doc = {
             "model": self.model.name,
+            "model_source": source_of(self.model),
             "method": self.method,
             "swarm": self.swarm_mode,
             "seed": int(self.seed),
@@ -260,10 +286,10 @@ class FitResult:
             "units": list(self.model.units),
             "mrjax_version": __version__,
             "conditions": conds,
-            "warnings": spread_warnings(self),
         }
         if generalized is not None:
             doc["generalized"] = generalized.to_dict()
+        doc["warnings"] = self.warnings(generalized)
         return json_safe(doc)
 
     def _estimated_names(self, i: int) -> list[str]:
@@ -289,6 +315,63 @@ class FitResult:
             vals += list(self.theta[i]) + list(self.stderr[i])
             out.append(",".join(csv_cell(v) for v in vals))
         return "\n".join(out) + "\n"
+
+
+#: A parameter within this fraction of its search box's width of a bound is "at a bound".
+AT_BOUND = 5e-3
+
+
+def _who(labels: Sequence[str]) -> str:
+    """The tests a warning concerns, briefly."""
+    n = len(labels)
+    return f"{n} test{'s' if n != 1 else ''} (first: {labels[0]!r})"
+
+
+def _warnings(res: FitResult, generalized: Any) -> list[dict[str, Any]]:
+    """:meth:`FitResult.warnings`."""
+    out: list[dict[str, Any]] = []
+    names = res.param_names
+    theta = np.asarray(res.theta, float)
+    if res.bounds is not None:
+        lo = np.asarray(res.bounds["lower"], float)
+        hi = np.asarray(res.bounds["upper"], float)
+        # near a bound, and the data cannot tell it from the bound (within its 95 % interval,
+        # or no std-error): a small value resolved far from 0 in a wide box is not flagged
+        se = np.asarray(res.stderr, float)
+        tol = AT_BOUND * (hi - lo)
+        unsure = ~np.isfinite(se)
+        d_lo, d_hi = theta - lo, hi - theta
+        near_lo = (d_lo <= tol) & (unsure | (d_lo <= 1.96 * se)) & (hi > lo)
+        near_hi = (d_hi <= tol) & (unsure | (d_hi <= 1.96 * se)) & (hi > lo)
+        at = near_lo | near_hi
+        if at.any():
+            rows, cols = np.nonzero(at)
+            i, j = int(rows[0]), int(cols[0])
+            side = "lower" if near_lo[i, j] else "upper"
+            params = [names[k] for k in np.flatnonzero(at.any(axis=0))]
+            tests = [res.labels[k] for k in np.flatnonzero(at.any(axis=1))]
+            out.append({
+                "kind": "at_bound",
+                "message": f"{', '.join(params)} at a bound of the search box in "
+                f"{_who(tests)}: {names[j]} = {theta[i, j]:.4g} at its {side} bound "
+                f"{(lo if side == 'lower' else hi)[j]:.4g}; the optimum may lie outside the box: "
+                "widen it (--bounds) or check the data",
+                "conditions": tests, "parameters": params})
+    bad = ~np.asarray(res.identifiable, bool)
+    if bad.any():
+        params = [names[k] for k in np.flatnonzero(bad.any(axis=0))]
+        tests = [res.labels[k] for k in np.flatnonzero(bad.any(axis=1))]
+        out.append({
+            "kind": "not_identifiable",
+            "message": f"{', '.join(params)} not identifiable in {_who(tests)}: a null "
+            "direction of J^T J or a near-perfect correlation with another parameter, so the "
+            "data do not determine their values (null std-errors)",
+            "conditions": tests, "parameters": params})
+    out.extend(spread_warnings(res))
+    if generalized is not None:  # a GeneralizedModel (not imported: generalize uses fitting)
+        for w in generalized.law_warnings(res.current):
+            out.append(dict(w, conditions=list(res.labels)))
+    return out
 
 
 def save(

@@ -82,6 +82,8 @@ def assemble(problem: TestsProblem, out: Outcome, run: Run) -> FitResult:
         corr=np.full((C, P, P), np.nan) if unc is None else np.asarray(unc.corr, float),
         identifiable=np.ones((C, P), bool) if unc is None else np.asarray(unc.identifiable, bool),
         timings=dict(out.timings), estimated=np.asarray(batch.estimated, bool),
+        bounds={"lower": np.asarray(problem.lower, float),
+                "upper": np.asarray(problem.upper, float)},
     )
     return unpad(result, problem.n_real) if result.n_conditions != problem.n_real else result
 

@@ -233,7 +233,8 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *
         modified Bouc-Wen keeps Spencer's constant k0, k1 and f0 (= -k1 x0). Letting the shape
         parameters follow the current as well makes these strongly nonlinear models interpolate
         badly between measured currents (measured on the UTFSM data).
-    - Any other model: degree 1, and 2 for `alpha`.
+    - Any other model: the degrees it declares (`AbstractModel.law_degrees`, e.g.
+        `mrjax.models.Parameter(..., degree=0)`), else degree 1, and 2 for `alpha`.
     - With `unit="V"` (laws of a command voltage) the modified Bouc-Wen takes Spencer's 1997
         voltage laws exactly: c0, c1 and alpha linear, every other parameter constant
         (`VOLTAGE_DEGREES`); the other models keep the table above.
@@ -252,6 +253,7 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *
         deg = dict(DEFAULT_DEGREES[model.name])
     else:
         deg = {n: (2 if n == "alpha" else 1) for n in model.param_names}
+        deg.update(model.law_degrees)  # what a declared model says of its own parameters
     if n_currents is not None:
         deg = {n: min(d, max(int(n_currents) - 1, 0)) for n, d in deg.items()}
     return deg

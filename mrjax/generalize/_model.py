@@ -21,9 +21,17 @@ from .._errors import InputError
 from .._io import json_safe
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch, as_batch, check_mask
-from ..models import AbstractModel, get, resolve_model
+from ..models import AbstractModel, from_source, get, resolve_model, source_of
 from ..objective import masked_rms, nrmse
-from ._laws import COMMAND_UNITS, Z_SCALE_MODELS, Law, LawSet, lag_current
+from ._laws import (
+    COMMAND_UNITS,
+    Z_SCALE_MODELS,
+    Law,
+    LawSet,
+    default_degrees,
+    group_currents,
+    lag_current,
+)
 
 #: Methods a :class:`GeneralizedModel` can come from: the paper's two-step generalization, the
 #: joint fit of the law coefficients (`generalize(method="joint")` and `identify`), or laws
@@ -362,6 +370,34 @@ class GeneralizedModel:
         return out
 
     # ----------------------------------------------------------------------------- text, I/O
+    def law_warnings(self, currents: ArrayLike) -> list[dict[str, Any]]:
+        """Laws that the tests' currents cannot determine: with U distinct `currents` [in
+        `command_unit`] a law of degree d needs d + 1 of them, so where the model's default
+        degree (:func:`default_degrees`) is higher than U - 1 the law was reduced to degree
+        U - 1 (constant for one current) or is not determined. As `FitResult.warnings`:
+        `[{"kind": "too_few_currents", "message", "conditions": [], "parameters"}]` or `[]`.
+        (Laws identified from time-varying commands, `identify`, see a continuum of commands:
+        this check is for laws through tests at constant currents.)"""
+        cur = np.asarray(currents, float).ravel()
+        levels, _ = group_currents(cur[np.isfinite(cur)]) if np.isfinite(cur).any() else (
+            np.zeros(0), None)
+        wanted = default_degrees(self.model, unit=self.command_unit)
+        short = [n for n in self.param_names
+                 if max(wanted.get(n, 0), len(self.coefficients(n)) - 1) + 1 > levels.size]
+        if not short:
+            return []
+        need = max(max(wanted.get(n, 0), len(self.coefficients(n)) - 1) for n in short) + 1
+        have = ", ".join(f"{v:g}" for v in levels[:6]) + (" ..." if levels.size > 6 else "")
+        U = levels.size
+        return [{
+            "kind": "too_few_currents",
+            "message": f"laws of {', '.join(short)} from {U} distinct current"
+            f"{'s' if U != 1 else ''} ({have} {self.command_unit}): their degrees need up to "
+            f"{need} distinct currents, so they are "
+            f"{'constants' if U == 1 else f'of degree at most {U - 1}'} or not determined by "
+            "the data; test more currents",
+            "conditions": [], "parameters": short}]
+
     def loosely_determined(self, rel: float = 0.025) -> dict[str, tuple[bool, ...]]:
         """Which law coefficients the data determine only loosely: std-error above `rel`
         (dimensionless, default 2.5 %) of the coefficient's magnitude, so that two std-errors
@@ -428,6 +464,7 @@ class GeneralizedModel:
         out = {
             "method": self.method,
             "model": self.model.name,
+            "model_source": source_of(self.model),
             "total_rms_N": total,
             "current_range_A": rng if self.command_unit == "A" else None,
             "laws": {n: self.laws[n].to_dict() for n in self.param_names},
@@ -447,9 +484,13 @@ class GeneralizedModel:
         return json_safe(out)
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> GeneralizedModel:
+    def from_dict(cls, d: Mapping[str, Any], *, model: AbstractModel | None = None
+                  ) -> GeneralizedModel:
         """Inverse of :meth:`to_dict` (also accepts a whole `fit.json` with a `"generalized"`
-        block). Raises :class:`mrjax.InputError` for a malformed block."""
+        block). The model is found again from its name and recorded source
+        (`mrjax.models.from_source`: a user's model from its file or module), or given as
+        `model` (whose name must match). Raises :class:`mrjax.InputError` for a malformed
+        block, or one line saying what to pass when the model cannot be found."""
         if not isinstance(d, Mapping):
             raise InputError("generalized model must be a JSON object")
         if "generalized" in d and "laws" not in d:
@@ -461,7 +502,13 @@ class GeneralizedModel:
         rng = d.get("command_range") or d.get("current_range_A") or [0.0, 0.0]
         unit = d.get("command_unit") or "A"
         lag = d.get("lag_1_s")
-        return cls(model=get(d["model"]), laws=dict(d["laws"]),
+        if model is None:
+            model = from_source(d["model"], d.get("model_source"))
+        else:
+            model = get(model)
+            if model.name != str(d["model"]).strip().lower():
+                raise InputError(f"the laws are of model {d['model']!r}, not {model.name!r}")
+        return cls(model=model, laws=dict(d["laws"]),
                    method=d.get("method", "two-step"),
                    total_rms=float("nan") if total is None else float(total),
                    current_range=tuple(rng), weighting=d.get("weighting") or "",

@@ -112,6 +112,13 @@ class AbstractModel(eqx.Module):
         lin = set(self.linear_params)
         return np.array([i for i, n in enumerate(self.param_names) if n not in lin], dtype=int)
 
+    @property
+    def law_degrees(self) -> dict[str, int]:
+        """Default polynomial degrees of some parameters' laws over the current, by name, that
+        the model declares itself (see `mrjax.generalize.default_degrees`); empty: the
+        generic defaults."""
+        return {}
+
     def default_start(self) -> np.ndarray:
         """The neutral start used by `method="lm"`: the centre of the default box (the
         geometric centre for `log_params`), shape (P,). It knows nothing about the data, which

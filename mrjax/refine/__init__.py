@@ -1,5 +1,10 @@
 """The gradient polish: bounded Levenberg-Marquardt per condition, batched, with uncertainty.
 
+:func:`solve_box` is the one bounded, batched polish of mrjax: every unit of a problem (a
+condition of a per-test fit; the whole data of a joint-law fit) solved side by side by
+:func:`lm_solve` (the one optimistix call site) on its residuals in a box; the engine
+(`mrjax.engine.solve`) calls it for every problem kind.
+
 :func:`polish` refines a start (typically the swarm's best) on every condition of a
 :class:`mrjax.data.Batch` at once: the residual function is written for *one* condition,
 :func:`mrjax.objective.residuals`, and `jax.vmap` batches `optimistix.least_squares` with

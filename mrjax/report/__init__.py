@@ -17,12 +17,14 @@ from ._command import command_figures as command_figures
 from ._command import plot_command_record as plot_command_record
 from ._command import plot_laws_vs_command as plot_laws_vs_command
 from ._figures import plot_convergence as plot_convergence
-from ._figures import plot_data_loops as plot_data_loops
 from ._figures import plot_generations_vs_current as plot_generations_vs_current
-from ._figures import plot_loops_grid as plot_loops_grid
 from ._figures import plot_params_vs_current as plot_params_vs_current
 from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
 from ._figures import plot_rms_vs_current as plot_rms_vs_current
 from ._figures import save_png_bytes as save_png_bytes
+from ._loops import TANH_STEP_NOTE as TANH_STEP_NOTE
+from ._loops import condition_title as condition_title
+from ._loops import plot_data_loops as plot_data_loops
+from ._loops import plot_loops_grid as plot_loops_grid
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records

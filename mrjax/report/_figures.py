@@ -50,6 +50,7 @@ def save_png_bytes(fig: Figure, *, dpi: int = 130) -> bytes:
 
 
 def new_figure(width: float, height: float) -> Figure:
+    """A figure of `width` x `height` inches with constrained layout (no pyplot)."""
     return Figure(figsize=(width, height), layout="constrained")
 
 
@@ -61,6 +62,7 @@ def _arr(obj: Any, name: str, n: int) -> np.ndarray:
 
 
 def labels_of(obj: Any, n: int) -> list[str]:
+    """The `labels` of `obj` as strings, or `#0`, `#1`, ... for its `n` conditions."""
     labels = getattr(obj, "labels", None)
     return [str(s) for s in labels] if labels is not None else [f"#{i}" for i in range(n)]
 
@@ -73,17 +75,19 @@ def _n(obj: Any) -> int:
     raise TypeError(f"cannot tell the number of conditions of {type(obj).__name__}")
 
 
-def _motion(f: float, a: float) -> tuple[float, float] | None:
+def motion_of(f: float, a: float) -> tuple[float, float] | None:
+    """`(frequency [Hz], amplitude [m])`, or None when either is unknown (NaN)."""
     return (float(f), float(a)) if math.isfinite(f) and math.isfinite(a) else None
 
 
-def _motion_label(m: tuple[float, float] | None) -> str:
+def motion_label(m: tuple[float, float] | None) -> str:
+    """A motion as text, `1 Hz, 8 mm` (or `unknown motion`)."""
     return "unknown motion" if m is None else f"{m[0]:g} Hz, {m[1] * 1e3:g} mm"
 
 
-def _motions(freq: np.ndarray, amp: np.ndarray) -> list[tuple[float, float] | None]:
+def distinct_motions(freq: np.ndarray, amp: np.ndarray) -> list[tuple[float, float] | None]:
     """Distinct (frequency, amplitude) pairs, sorted (unknown last)."""
-    keys = {_motion(f, a) for f, a in zip(freq, amp)}
+    keys = {motion_of(f, a) for f, a in zip(freq, amp)}
     known = sorted(k for k in keys if k is not None)
     return known + ([None] if None in keys else [])
 
@@ -95,7 +99,7 @@ def _x_current(current: np.ndarray) -> tuple[np.ndarray, str]:
     return np.arange(current.size, dtype=float), "condition index (current unknown)"
 
 
-def _current_colors(current: np.ndarray):
+def current_colors(current: np.ndarray):
     """A colour per condition from its current, and the ScalarMappable for a colorbar.
 
     With unknown currents, colours cycle by index and the mappable is None.
@@ -114,11 +118,13 @@ def _current_colors(current: np.ndarray):
 
 
 def velocity_scale(v: np.ndarray) -> tuple[float, str]:
+    """`(factor, unit)` to show velocities `v` [m/s]: mm/s below 1 m/s, else m/s."""
     vmax = float(np.nanmax(np.abs(v))) if v.size else 0.0
     return (1.0, "m/s") if vmax >= 1.0 else (1e3, "mm/s")
 
 
-def _small(ax, size: float = 6.0) -> None:
+def small_axes(ax, size: float = 6.0) -> None:
+    """Ticks of `size` points (about four per axis) and a light grid on a small panel."""
     ax.tick_params(labelsize=size, length=2, pad=1.5)
     ax.locator_params(nbins=4)
     ax.grid(True, lw=0.3, alpha=0.5)
@@ -147,6 +153,26 @@ def rows_rms(force: np.ndarray, pred: np.ndarray, mask: np.ndarray) -> np.ndarra
                                            jnp.asarray(mask, bool)), float)
 
 
+def measured_and_model(result: Any, batch: Any, force: np.ndarray | None,
+                       rms: Sequence[float] | None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What a measured-vs-model figure draws: `(F, pred, mask, rms)` with the measured force
+    (C, T) [N], the model's (`force`, or `result.predict(batch)`), the mask and the RMS per
+    condition [N] (`rms`, else `result.rms` when it has one entry per condition, else
+    :func:`rows_rms`). Raises `ValueError` when the model force's shape is not the batch's."""
+    pred = np.asarray(result.predict(batch) if force is None else force, dtype=float)
+    F = np.asarray(batch.force, dtype=float)
+    mask = np.asarray(batch.mask, dtype=bool)
+    C = F.shape[0]
+    if pred.shape != F.shape:
+        raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
+    if rms is None:
+        r = getattr(result, "rms", None)
+        rms = (np.asarray(r, float) if r is not None and np.size(r) == C
+               else rows_rms(F, pred, mask))
+    return F, pred, mask, np.asarray(rms, float)
+
+
 def _no_data(fig: Figure, ax, text: str) -> Figure:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=10,
             color="0.35")
@@ -155,187 +181,18 @@ def _no_data(fig: Figure, ax, text: str) -> Figure:
     return fig
 
 
-def _layout_cells(cur: np.ndarray, freq: np.ndarray, amp: np.ndarray, idx: Sequence[int]):
-    """(row, col) of each selected condition: motions by rows and currents by columns when the
-    conditions form such a grid (one condition per cell), else row-major in a near-square grid.
-
-    Returns `(cells, nrows, ncols, row_titles, col_titles)`.
-    """
-    idx = list(idx)
-    keys = [(_motion(freq[i], amp[i]), cur[i]) for i in idx]
-    if all(m is not None and math.isfinite(c) for m, c in keys) and len(set(keys)) == len(keys):
-        motions = sorted({m for m, _ in keys})
-        currents = sorted({c for _, c in keys})
-        full = len(keys) >= 0.75 * len(motions) * len(currents)
-        if len(motions) > 1 and len(currents) > 1 and len(currents) <= 8 and full:
-            cells = [(motions.index(m), currents.index(c)) for m, c in keys]
-            return (cells, len(motions), len(currents), [_motion_label(m) for m in motions],
-                    [f"{c:g} A" for c in currents])
-    n = len(idx)
-    ncols = max(1, min(6, math.ceil(math.sqrt(n))))
-    nrows = math.ceil(n / ncols)
-    return [(k // ncols, k % ncols) for k in range(n)], nrows, ncols, None, None
-
-
-# --------------------------------------------------------------------------------------------
-# Loops
-
-
-def plot_loops_grid(
-    result: Any,
-    batch: Any,
-    *,
-    max_panels: int = 36,
-    force: np.ndarray | None = None,
-    rms: Sequence[float] | None = None,
-    title: str | None = None,
-) -> Figure:
-    """Measured vs fitted force-displacement and force-velocity loops of every condition.
-
-    Each condition gets a pair of small panels, F-x [mm] and F-v [mm/s], under a title with its
-    label and RMS error. When the conditions form a motion x current grid, rows are motions and
-    columns currents (as the paper's Figs 7, 8 and 12); otherwise they fill a near-square grid in
-    batch order.
-
-    **Arguments:**
-
-    - `result`: a `mrjax.FitResult`, or any object with `.predict(batch) -> (C, T)` force [N]
-        (e.g. a generalized model); not called when `force` is given.
-    - `batch`: the `mrjax.data.Batch` it was fitted on (same conditions, same order).
-    - `max_panels`: at most this many conditions are drawn, evenly spread over the batch; the
-        title says how many were left out.
-    - `force`: the model force (C, T) [N], instead of `result.predict(batch)`.
-    - `rms`: per-condition RMS [N] to print (default `result.rms` when it has one entry per
-        condition, else the RMS over the batch mask).
-    - `title`: figure title (default names the model).
-
-    **Returns:** the figure.
-    """
-    pred = np.asarray(result.predict(batch) if force is None else force, dtype=float)
-    F = np.asarray(batch.force, dtype=float)
-    x = np.asarray(batch.x, dtype=float) * 1e3
-    mask = np.asarray(batch.mask, dtype=bool)
-    C = F.shape[0]
-    if pred.shape != F.shape:
-        raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
-    vs, vunit = velocity_scale(np.asarray(batch.xdot)[mask])
-    v = np.asarray(batch.xdot, dtype=float) * vs
-    if rms is None:
-        r = getattr(result, "rms", None)
-        rms = (np.asarray(r, float) if r is not None and np.size(r) == C
-               else rows_rms(F, pred, mask))
-    rms = np.asarray(rms, float)
-    labels = labels_of(batch, C)
-    cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
-                      ("current", "frequency", "amplitude"))
-
-    max_panels = max(1, int(max_panels))
-    idx = (list(range(C)) if C <= max_panels
-           else sorted(set(np.linspace(0, C - 1, max_panels).round().astype(int).tolist())))
-    cells, nrows, ncols, row_titles, col_titles = _layout_cells(cur, freq, amp, idx)
-
-    # manual grid (constrained layout costs seconds at ~70 axes); margins fixed in inches
-    W, H = max(6.0, 3.1 * ncols + 0.5), 0.95 + 1.6 * nrows
-    fig = Figure(figsize=(W, H))
-    gs = fig.add_gridspec(nrows, ncols, left=0.5 / W, right=1 - 0.1 / W, bottom=0.42 / H,
-                          top=1 - 0.62 / H, wspace=0.28, hspace=0.62)
-    occupied = set(cells)
-    for i, (r, c) in zip(idx, cells):
-        sg = gs[r, c].subgridspec(1, 2, wspace=0.38)
-        ax_x, ax_v = fig.add_subplot(sg[0, 0]), fig.add_subplot(sg[0, 1])
-        m = np.flatnonzero(mask[i])
-        m = m[:: max(1, m.size // 2000)]  # a few thousand points are plenty at this size
-        for ax, xx in ((ax_x, x[i, m]), (ax_v, v[i, m])):
-            ax.plot(xx, F[i, m], color=MEASURED_COLOR, lw=0.7)
-            ax.plot(xx, pred[i, m], color=FITTED_COLOR, lw=0.9)
-            _small(ax, 5.5)
-        if (r + 1, c) not in occupied:
-            ax_x.set_xlabel("x [mm]", fontsize=6.5, labelpad=1)
-            ax_v.set_xlabel(f"v [{vunit}]", fontsize=6.5, labelpad=1)
-        if c == min(cc for rr, cc in occupied if rr == r):
-            ax_x.set_ylabel("F [N]", fontsize=6.5, labelpad=1)
-        box = gs[r, c].get_position(fig)
-        rtxt = f"{rms[i]:.3g} N" if np.isfinite(rms[i]) else "-"
-        fig.text((box.x0 + box.x1) / 2, box.y1 + 0.08 / H, f"{labels[i]}   RMS {rtxt}",
-                 ha="center", va="bottom", fontsize=7)
-    name = getattr(getattr(result, "model", None), "name", None)
-    head = title or (f"{name}: measured vs fitted loops" if name else "measured vs model loops")
-    if len(idx) < C:
-        head += f" ({len(idx)} of {C} conditions shown)"
-    if row_titles is not None:
-        head += "   (rows: motion, columns: current)"
-    fig.suptitle(head, fontsize=10, x=0.5 / W, ha="left", y=1 - 0.12 / H, va="top")
-    fig.legend([Line2D([], [], color=MEASURED_COLOR, lw=1.2), Line2D([], [], color=FITTED_COLOR, lw=1.2)],
-               ["measured", "model"], loc="upper right", bbox_to_anchor=(1 - 0.1 / W, 1 - 0.04 / H),
-               fontsize=7.5, ncols=2, frameon=False)
-    return fig
-
-
-def plot_data_loops(batch: Any, *, motion: tuple[float, float] | None = None) -> Figure:
-    """Measured force-displacement and force-velocity loops coloured by current (Fig 3).
-
-    One panel pair (F-x, F-v) per (frequency, amplitude) motion, or only `motion`.
-
-    **Arguments:**
-
-    - `batch`: a `mrjax.data.Batch`.
-    - `motion`: `(frequency [Hz], amplitude [m])` to draw only that motion (default: all).
-
-    **Returns:** the figure. Raises `ValueError` if `motion` is not in the batch.
-    """
-    F = np.asarray(batch.force, float)
-    x = np.asarray(batch.x, float) * 1e3
-    mask = np.asarray(batch.mask, bool)
-    vs, vunit = velocity_scale(np.asarray(batch.xdot)[mask])
-    v = np.asarray(batch.xdot, float) * vs
-    cur, freq, amp = (np.asarray(getattr(batch, k), float) for k in
-                      ("current", "frequency", "amplitude"))
-    labels = labels_of(batch, F.shape[0])
-    motions = _motions(freq, amp)
-    if motion is not None:
-        want = (float(motion[0]), float(motion[1]))
-        hit = [m for m in motions if m is not None and np.allclose(m, want, rtol=1e-6)]
-        if not hit:
-            raise ValueError(f"motion {_motion_label(want)} not in the batch; it has "
-                             f"{', '.join(_motion_label(m) for m in motions)}")
-        motions = hit
-    colors, sm = _current_colors(cur)
-
-    nblk = min(3, len(motions))
-    nrows = math.ceil(len(motions) / nblk)
-    fig = new_figure(max(7.0, 5.6 * nblk) + 0.6, 0.8 + 2.9 * nrows)
-    axes = fig.subplots(nrows, 2 * nblk, squeeze=False)
-    for k, m in enumerate(motions):
-        r, c = divmod(k, nblk)
-        ax_x, ax_v = axes[r][2 * c], axes[r][2 * c + 1]
-        sel = [i for i in range(F.shape[0]) if _motion(freq[i], amp[i]) == m]
-        sel.sort(key=lambda i: (cur[i] if np.isfinite(cur[i]) else np.inf, i))
-        for i in sel:
-            mi = mask[i]
-            lab = labels[i] if sm is None else None
-            ax_x.plot(x[i, mi], F[i, mi], color=colors[i], lw=0.9, label=lab)
-            ax_v.plot(v[i, mi], F[i, mi], color=colors[i], lw=0.9)
-        for ax, xl in ((ax_x, "displacement x [mm]"), (ax_v, f"velocity v [{vunit}]")):
-            _small(ax, 7)
-            ax.set_xlabel(xl, fontsize=8)
-            ax.set_ylabel("force F [N]", fontsize=8)
-            ax.set_title(f"{_motion_label(m)}: F-{'x' if ax is ax_x else 'v'}", fontsize=8.5)
-        if sm is None:
-            ax_x.legend(fontsize=6, frameon=False)
-    for k in range(len(motions), nrows * nblk):
-        r, c = divmod(k, nblk)
-        axes[r][2 * c].set_visible(False)
-        axes[r][2 * c + 1].set_visible(False)
-    if sm is not None:
-        cb = fig.colorbar(sm, ax=axes, shrink=0.9, pad=0.01, aspect=40)
-        cb.set_label("current [A]", fontsize=8)
-        cb.ax.tick_params(labelsize=7)
-    fig.suptitle("Measured force loops by current", fontsize=11)
-    return fig
-
-
 # --------------------------------------------------------------------------------------------
 # Per-condition scalars vs current
+
+
+def _dodged(xs: np.ndarray, slot: int, nslot: int, step: float, lo: float, hi: float
+            ) -> np.ndarray:
+    """`xs` moved to slot `slot` of `nslot` markers `step` apart: centred on each x, but
+    inside [lo, hi] (the markers of the lowest current go right of it, those of the highest
+    left), so that no marker sits at a current that was not tested (below 0 A)."""
+    half = 0.5 * (nslot - 1) * step
+    shift = np.where(np.isclose(xs, lo), half, np.where(np.isclose(xs, hi), -half, 0.0))
+    return xs + (slot - 0.5 * (nslot - 1)) * step + (shift if hi > lo else 0.0)
 
 
 def _dodge_step(x: np.ndarray, nslot: int) -> float:
@@ -355,7 +212,7 @@ def _scatter_vs_current(ax, results: dict[str, Any], value: Callable[[Any], np.n
     all_motions: list = []
     for res in results.values():
         n = _n(res)
-        for m in _motions(_arr(res, "frequency", n), _arr(res, "amplitude", n)):
+        for m in distinct_motions(_arr(res, "frequency", n), _arr(res, "amplitude", n)):
             if m not in all_motions:
                 all_motions.append(m)
     all_motions = sorted(m for m in all_motions if m is not None) + (
@@ -365,6 +222,8 @@ def _scatter_vs_current(ax, results: dict[str, Any], value: Callable[[Any], np.n
     currents = np.concatenate([_arr(r, "current", _n(r)) for r in results.values()])
     nslot = len(results) * len(all_motions)
     step = _dodge_step(currents, nslot)
+    lo, hi = (float(np.nanmin(currents)), float(np.nanmax(currents))) if np.isfinite(
+        currents).any() else (0.0, 0.0)
     handles = []
     for j, (name, res) in enumerate(results.items()):
         n = _n(res)
@@ -377,13 +236,13 @@ def _scatter_vs_current(ax, results: dict[str, Any], value: Callable[[Any], np.n
         for k, m in enumerate(all_motions):
             # one result: colour by motion too (easier to read); several: colour by result
             color = f"C{(j if nres > 1 else k) % 10}"
-            off = (j * len(all_motions) + k - (nslot - 1) / 2) * step
-            sel = np.array([_motion(f, a) == m for f, a in zip(freq, amp)], bool)
+            xd = _dodged(xs, j * len(all_motions) + k, nslot, step, lo, hi)
+            sel = np.array([motion_of(f, a) == m for f, a in zip(freq, amp)], bool)
             for mk_fill in (True, False):
                 s = sel & (fill == mk_fill)
                 if not s.any():
                     continue
-                ax.scatter(xs[s] + off, y[s], marker=_MARKERS[k % len(_MARKERS)], s=34,
+                ax.scatter(xd[s], y[s], marker=_MARKERS[k % len(_MARKERS)], s=34,
                            facecolors=color if mk_fill else "none", edgecolors=color,
                            linewidths=1.0, alpha=0.9, zorder=3)
         if nres > 1:
@@ -392,7 +251,7 @@ def _scatter_vs_current(ax, results: dict[str, Any], value: Callable[[Any], np.n
         for k, m in enumerate(all_motions):
             handles.append(Line2D([], [], ls="", marker=_MARKERS[k % len(_MARKERS)],
                                   color="0.3" if nres > 1 else f"C{k % 10}", mfc="none",
-                                  label=_motion_label(m)))
+                                  label=motion_label(m)))
     return xlabel, handles
 
 
@@ -502,13 +361,14 @@ def plot_params_vs_current(result: Any, *, laws: Any = None, ncols: int = 3) -> 
     cur = _arr(result, "current", C)
     xs, xlabel = _x_current(cur)
     freq, amp = _arr(result, "frequency", C), _arr(result, "amplitude", C)
-    motions = _motions(freq, amp)
+    motions = distinct_motions(freq, amp)
     law = None
     if laws is not None and xlabel == "current [A]":
         lo, hi = float(np.min(cur)), float(np.max(cur))
         grid = np.linspace(lo, hi if hi > lo else lo + 1.0, 200)
         law = (grid, _eval_laws(laws, grid, P))
     dodge = _dodge_step(xs, len(motions))
+    lo, hi = float(np.min(xs)), float(np.max(xs))
 
     ncols = max(1, min(int(ncols), P))
     nrows = math.ceil(P / ncols)
@@ -517,17 +377,16 @@ def plot_params_vs_current(result: Any, *, laws: Any = None, ncols: int = 3) -> 
     for p in range(P):
         ax = axes[p // ncols][p % ncols]
         for k, m in enumerate(motions):
-            sel = np.array([_motion(f, a) == m for f, a in zip(freq, amp)], bool)
-            off = (k - (len(motions) - 1) / 2) * dodge
+            sel = np.array([motion_of(f, a) == m for f, a in zip(freq, amp)], bool)
+            xd = _dodged(xs, k, len(motions), dodge, lo, hi)
             err = np.where(np.isfinite(stderr[sel, p]), stderr[sel, p], 0.0)
-            ax.errorbar(xs[sel] + off, theta[sel, p], yerr=err, ls="",
+            ax.errorbar(xd[sel], theta[sel, p], yerr=err, ls="",
                         marker=_MARKERS[k % len(_MARKERS)], ms=4, mfc="none", color=f"C{k % 10}",
-                        elinewidth=0.8, capsize=1.5, label=_motion_label(m))
+                        elinewidth=0.8, capsize=1.5, label=motion_label(m))
         if law is not None:
             ax.plot(law[0], law[1][:, p], color="k", lw=1.4, label="fitted law", zorder=4)
-        unit = units[p] if p < len(units) else ""
-        unit = unit.replace("*", "·")
-        ax.set_ylabel(f"{names[p]} [{unit}]" if unit and unit != "-" else names[p])
+        unit = (units[p] if p < len(units) else "") or "-"
+        ax.set_ylabel(f"{names[p]} [{unit.replace('*', '·')}]")  # [-]: dimensionless
         ax.set_title(names[p], fontsize=10)
         ax.set_xlabel(xlabel, fontsize=8.5)
         ax.tick_params(labelsize=8)
@@ -539,6 +398,9 @@ def plot_params_vs_current(result: Any, *, laws: Any = None, ncols: int = 3) -> 
     model = getattr(getattr(result, "model", None), "name", "")
     fig.suptitle(f"{model} parameters vs current" + (" with fitted laws" if law else "")
                  + "  (bars: ±1 std-error)", fontsize=11)
+    if dodge > 0:
+        fig.supxlabel("markers of one current are spread sideways, within the tested range, "
+                      "so that they do not hide each other", fontsize=8, color="0.35")
     return fig
 
 
@@ -567,7 +429,7 @@ def plot_convergence(result: Any, *, logy: bool = True) -> Figure:
     cur = _arr(result, "current", C)
     gens = np.asarray(result.generations, int)
     crit = np.asarray(result.stopped_by_criterion, bool)
-    colors, sm = _current_colors(cur)
+    colors, sm = current_colors(cur)
     for i in range(C):
         g = int(min(max(gens[i], 0), hist.shape[1] - 1))
         h = hist[i, : g + 1]

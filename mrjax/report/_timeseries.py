@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ._figures import FITTED_COLOR, MEASURED_COLOR, labels_of, rows_rms, velocity_scale
+from ._figures import FITTED_COLOR, MEASURED_COLOR, labels_of, measured_and_model, velocity_scale
 
 #: Most points drawn per line: longer signals are reduced to their min/max envelope.
 _MAX_POINTS = 4000
@@ -103,18 +103,9 @@ def plot_force_time(
 
     **Returns:** the figure.
     """
-    pred = np.asarray(result.predict(batch) if force is None else force, dtype=float)
-    F = np.asarray(batch.force, dtype=float)
-    t_all = np.asarray(batch.t, dtype=float)
-    mask = np.asarray(batch.mask, dtype=bool)
+    F, pred, mask, rms = measured_and_model(result, batch, force, rms)
     C = F.shape[0]
-    if pred.shape != F.shape:
-        raise ValueError(f"model force has shape {pred.shape}, the batch {F.shape}")
-    if rms is None:
-        r = getattr(result, "rms", None)
-        rms = (np.asarray(r, float) if r is not None and np.size(r) == C
-               else rows_rms(F, pred, mask))
-    rms = np.asarray(rms, float)
+    t_all = np.asarray(batch.t, dtype=float)
     labels = labels_of(batch, C)
     idx = chosen_panels(C, max_panels)
 

@@ -8,7 +8,7 @@ mrjax reproduce --data DIR           # the same study on a directory of measured
 
 ```python
 import mrjax.reproduce
-mrjax.reproduce.run("mrjax-out", quick=True, seed=0)   # writes the files, returns 0
+mrjax.reproduce.run("mrjax-out/reproduce", quick=True, seed=0)   # writes the files, returns 0
 ```
 
 **Data.** By default the embedded grid `mrjax.data.paper_grid()`: Table 1's 36 tests

@@ -13,6 +13,7 @@ from matplotlib.lines import Line2D
 
 from ..data import paper_parameters
 from ..report import (
+    TANH_STEP_NOTE,
     plot_convergence,
     plot_data_loops,
     plot_generations_vs_current,
@@ -41,7 +42,11 @@ def _motions_text(batch) -> str:
 
 
 def _fig_data(study: Study) -> Figure:
-    return plot_data_loops(study.batch)
+    if study.data_info["truth"]:  # the embedded data: simulated by the tanh model
+        return plot_data_loops(
+            study.batch, title="Fig 3: simulated force loops by current (tanh model at eq "
+            "24-29, 20 N noise)", note=TANH_STEP_NOTE)
+    return plot_data_loops(study.batch, title="Fig 3: measured force loops by current")
 
 
 def _fig_loops(key: str, number: int, name: str) -> Callable[[Study], Figure]:
@@ -95,22 +100,24 @@ def _fig_params(study: Study) -> Figure:
         grid = np.linspace(float(cur.min()), float(cur.max()), 200)
         ref = paper_parameters(grid)
         axes = {ax.get_title(): ax for ax in fig.axes}
+        # the truth as a wide light band under the fitted law: both stay visible where they
+        # coincide (a dashed line on top hid the law, under it the law hid the truth)
+        band = dict(color="C3", lw=6, alpha=0.3, solid_capstyle="butt", zorder=1)
         for p, name in enumerate(res.param_names):
             if name in axes:
-                axes[name].plot(grid, ref[:, p], color="C3", ls="--", lw=1.2, zorder=5)
+                axes[name].plot(grid, ref[:, p], **band)
         handles, labels = [], []
         first = axes.get(res.param_names[0])
         if first is not None:
             handles, labels = first.get_legend_handles_labels()
-        handles.append(Line2D([], [], color="C3", ls="--", lw=1.2))
-        labels.append("eq 24-29 (paper)")
+        handles.append(Line2D([], [], **band))
+        labels.append("eq 24-29 (truth)")
         for leg in list(fig.legends):
             leg.remove()
         fig.legend(handles, labels, loc="outside right upper", fontsize=8, frameon=False)
     if gm is not None:
-        fig.suptitle(f"tanh parameters vs current: separable swarm + LM per test, {key} laws"
-                     + (", eq 24-29 dashed" if study.data_info["truth"] else "")
-                     + "  (bars: ±1 std-error)", fontsize=11)
+        fig.suptitle(f"Fig 11: tanh parameters per test (separable swarm + LM, bars ±1 "
+                     f"std-error) and {key} laws", fontsize=11)
     return fig
 
 
@@ -163,10 +170,13 @@ class _Figure(NamedTuple):
 #: Figure file -> what it needs, how it is drawn and its caption, in the order of summary.md.
 FIGURES: dict[str, _Figure] = {
     "fig03_data_loops.png": _Figure(
-        (), _fig_data, "Fig 3: the data, force-displacement and force-velocity loops by current"),
+        (), _fig_data, "Fig 3: the data, force-displacement and force-velocity loops by current "
+        "(simulated by the tanh model for the embedded data: its force steps at x = 0, the "
+        "δ·sign(x) term)"),
     "fig07_loops_tanh.png": _Figure(
         ("kwok_paper_swarm",), _fig_loops("kwok_paper_swarm", 7, "tanh"),
-        "Fig 7: loops of the tanh model (paper's swarm) against the data"),
+        "Fig 7: loops of the tanh model (paper's swarm) against the data (the step at x = 0 "
+        "is the model's δ·sign(x) term)"),
     "fig08_loops_bouc_wen.png": _Figure(
         ("bouc_wen_paper_swarm",), _fig_loops("bouc_wen_paper_swarm", 8, "Bouc-Wen"),
         "Fig 8: loops of the Bouc-Wen model (paper's swarm)"),

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from .._errors import InputError
-from .._io import atomic_output, check_writable, json_bytes
+from .._io import OutputDir, json_bytes
 from ._figures import draw_figures
 from ._render import markdown, reading_notes, tables
 from ._study import StageLog, Study, compute, headline_generalized
@@ -38,31 +38,39 @@ def _fit_files(study: Study) -> dict[str, bytes]:
 
 
 def run(
-    out: str | os.PathLike = "mrjax-out",
+    out: str | os.PathLike | OutputDir = "mrjax-out/reproduce",
     *,
     quick: bool = False,
     data: str | os.PathLike | None = None,
     seed: int = 0,
     verbose: bool = True,
+    overwrite: bool = False,
 ) -> int:
     """Reproduce the study of Kwok et al. (2006) and write its figures and summary.
 
     **Arguments:**
 
-    - `out`: output directory (created; existing files of the same names are replaced). All
-        files are built in memory and written at the end, atomically.
+    - `out`: output directory (created), or one claimed by the caller (`mrjax._io.OutputDir`).
+        It holds the study's outputs only: a directory of another command, or with files mrjax
+        did not write, is refused unless `overwrite`, and a second study writing into it at
+        the same time is refused. All files are built in memory and written at the end,
+        atomically; those of a previous study that are not replaced are removed.
     - `quick`: the reduced version (two motions, swarms capped at `QUICK_GENERATIONS`, no
         Bouc-Wen separable swarm).
     - `data`: a directory of measured tests (see `mrjax.data.load`), or None for the embedded
         Table 1 grid.
     - `seed`: seed of every swarm (the same seed gives the same numbers).
     - `verbose`: print stage progress on stderr and the summary tables on stdout.
+    - `overwrite`: see `out`.
 
     **Returns:** 0. Raises :class:`mrjax.InputError` for unusable data or output directory.
     """
+    if not isinstance(out, OutputDir):
+        with OutputDir(out, "reproduce", overwrite=overwrite) as claimed:
+            return run(claimed, quick=quick, data=data, seed=seed, verbose=verbose)
     log = StageLog(verbose)
     cpu0 = time.process_time()
-    outp = check_writable(out)
+    outp = out.path
     if data is not None and not Path(data).exists():
         raise InputError(f"{data}: no such file or directory")
     files: dict[str, bytes] = {}
@@ -89,7 +97,7 @@ def run(
     files["summary.json"] = json_bytes(doc)
     files["summary.md"] = markdown(doc).encode()
     log.say(f"writing {len(files)} files to {outp}...")
-    atomic_output(outp, files)
+    out.write(files)
     if verbose:
         print(tables(doc))
         print()
