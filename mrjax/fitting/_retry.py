@@ -31,6 +31,8 @@ RETRY_DONORS = 16
 #: Weight of the current in the distance between tests (against the log frequency and log
 #: amplitude, each over its range in the batch): tests at the same current come first.
 CURRENT_WEIGHT = 4.0
+#: Distances computed per block of at most this many pairs (memory of a fleet's retry).
+NEIGHBOUR_BLOCK = 4_000_000
 #: The two polished starts of a test (the swarm's and the retry's) disagree when their RMS
 #: differ by more than this fraction of the lower: a warning (`spread_warnings`).
 SPREAD_MARGIN = 0.05
@@ -54,24 +56,39 @@ def neighbours(current: np.ndarray, frequency: np.ndarray, amplitude: np.ndarray
 
     The distance is `CURRENT_WEIGHT` x |current difference| + |log frequency difference| +
     |log amplitude difference|, each over its range in the batch (a feature unknown for both
-    tests adds nothing, for one of them its whole range); ties go to the earlier test.
+    tests adds nothing, for one of them its whole range); in order of distance, ties to the
+    earlier test (at the k-th distance, which of equals is taken is deterministic but not
+    necessarily the earliest).
 
     **Arguments:** `current` [A], `frequency` [Hz], `amplitude` [m], each (C,) (NaN where
     unknown); `k` donors per test.
     """
     C = np.asarray(current).shape[0]
-    d = np.zeros((C, C))
-    for f, w in ((_feature(current, False), CURRENT_WEIGHT), (_feature(frequency, True), 1.0),
-                 (_feature(amplitude, True), 1.0)):
-        diff = np.abs(f[:, None] - f[None, :])
-        known = np.isfinite(f)
-        # unknown for both: no difference; for one of the two: the largest
-        diff = np.where(known[:, None] & known[None, :], diff,
-                        np.where(known[:, None] | known[None, :], 1.0, 0.0))
-        d += w * diff
-    np.fill_diagonal(d, np.inf)
     m = min(int(k), C - 1)
-    return np.argsort(d, axis=1, kind="stable")[:, :m]
+    feats = [(_feature(current, False), CURRENT_WEIGHT), (_feature(frequency, True), 1.0),
+             (_feature(amplitude, True), 1.0)]
+    out = np.zeros((C, max(m, 0)), int)
+    if m <= 0:
+        return out
+    step = max(1, NEIGHBOUR_BLOCK // C)  # rows per block: the distances of a fleet stay small
+    for r0 in range(0, C, step):
+        rows = np.arange(r0, min(r0 + step, C))
+        d = np.zeros((rows.size, C))
+        for f, w in feats:
+            diff = np.abs(f[rows, None] - f[None, :])
+            known = np.isfinite(f)
+            # unknown for both: no difference; for one of the two: the largest
+            diff = np.where(known[rows, None] & known[None, :], diff,
+                            np.where(known[rows, None] | known[None, :], 1.0, 0.0))
+            d += w * diff
+        d[np.arange(rows.size), rows] = np.inf
+        if m < C - 1:  # the m nearest (deterministic), then in order of distance and index
+            part = np.sort(np.argpartition(d, m - 1, axis=1)[:, :m], axis=1)
+            order = np.argsort(np.take_along_axis(d, part, axis=1), axis=1, kind="stable")
+            out[rows] = np.take_along_axis(part, order, axis=1)
+        else:
+            out[rows] = np.argsort(d, axis=1, kind="stable")[:, :m]
+    return out
 
 
 def retry_starts(problem: TestsProblem, donors: np.ndarray, theta: np.ndarray,
