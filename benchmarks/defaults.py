@@ -16,8 +16,9 @@ committed).
 - `reference`: `--restarts 4` at seed 0 with the retry: with every other run, the best known
     optimum per test.
 - `holdout`: laws from the 18 tests at 0, 0.5 and 1 A (`mrjax fit TRAIN --generalize joint`,
-    fixed forms and `--laws auto`; the tanh model also two-step) predicted at 0.25 and 0.75 A
-    with `mrjax predict`.
+    `--laws fixed` (the model's default degrees, the previous default) and `--laws auto` (the
+    new default); the tanh model also two-step) predicted at 0.25 and 0.75 A with
+    `mrjax predict`.
 
 Writes `benchmarks/defaults.json` (every run, resumable) and `benchmarks/defaults.md`.
 """
@@ -140,16 +141,15 @@ def main(argv=None) -> int:
         train = [str(f) for f in files if f.stem.endswith(TRAIN_CURRENTS)
                  and not f.stem.endswith(("0x25A", "0x75A"))]
         test = [str(f) for f in files if f.stem.endswith(("0x25A", "0x75A"))]
-        for m, method, laws in (("modified_bouc_wen", "joint", None),
+        for m, method, laws in (("modified_bouc_wen", "joint", "fixed"),
                                 ("modified_bouc_wen", "joint", "auto"),
-                                ("kwok", "two-step", None), ("kwok", "two-step", "auto"),
-                                ("kwok", "joint", None), ("kwok", "joint", "auto")):
-            key = f"holdout/{m}/{method}/{laws or 'fixed'}"
+                                ("kwok", "two-step", "fixed"), ("kwok", "two-step", "auto"),
+                                ("kwok", "joint", "fixed"), ("kwok", "joint", "auto")):
+            key = f"holdout/{m}/{method}/{laws}"
             if key in runs:
                 continue
             fit_dir = tmp / (key.replace("/", "_") + "_fit")
-            cli = ["fit", *train, "--model", m, "--generalize", method] + (
-                ["--laws", laws] if laws else [])
+            cli = ["fit", *train, "--model", m, "--generalize", method, "--laws", laws]
             print(f"[{time.strftime('%H:%M:%S')}] {key}", file=sys.stderr, flush=True)
             r_fit = run_cli(cli, fit_dir)
             r_pred = run_cli(["predict", "--fit", str(fit_dir / "fit.json"), *test],
