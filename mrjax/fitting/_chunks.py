@@ -156,9 +156,9 @@ def fit_in_chunks(
     whole = problem_of(model, data, dataclasses.replace(run, devices=None))
     C = whole.n_real
     retry = wants_retry(run, model, C)
+    unc = run.uncertainty
     if retry:  # std-errors once, at the better of the two starts
         run = dataclasses.replace(run, uncertainty=False)
-        unc = run.polish is not None and run.polish.uncertainty
     k = run.swarm.n_restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
     # one stream per swarm row, split once for the whole batch (from the seed without a key)
