@@ -93,7 +93,8 @@ def test_settings_are_checked_at_construction():
 def test_every_kind_runs_through_the_one_engine(grid, monkeypatch):
     """`mrjax.fit`, `generalize(method="joint")` and `identify` each build a problem and run the
     one pipeline: every swarm and every polish of the three goes through `mrjax.engine.solve`
-    (its swarm stage and `mrjax.refine.solve_box`), with the problem kind of `PROBLEM_KINDS`."""
+    (its swarm stage and `mrjax.refine.solve_box`), with the problem kind of `PROBLEM_KINDS`;
+    the per-test fit's retry from the neighbours' optima is a second polish of the engine."""
     import mrjax.engine._run as run
 
     seen: list[tuple[str, str]] = []
@@ -111,7 +112,10 @@ def test_every_kind_runs_through_the_one_engine(grid, monkeypatch):
     monkeypatch.setattr(run, "solve_box", box)
     sub = grid.subset([0, 6, 12, 18, 24, 30])  # 1 Hz / 4 mm at six currents
     res = mrjax.fit("kwok", sub, seed=0, max_generations=40)
-    assert seen == [("swarm", "TestsProblem"), ("polish", "ConditionResidual")]
+    assert seen == [("swarm", "TestsProblem"), ("polish", "ConditionResidual"),
+                    ("polish", "ConditionResidual")]
+    assert res.starts_rms.shape == (6, 2)
+    assert np.all(res.rms <= res.starts_rms.min(axis=1) * (1 + 1e-12))
     seen.clear()
     gm = mrjax.generalize.generalize(res, sub, method="joint", seed=0, max_generations=20)
     assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]

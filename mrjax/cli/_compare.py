@@ -53,7 +53,8 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     fit_options = dict(method=args.method, restarts=args.restarts, n_particles=args.particles,
                        max_generations=args.max_generations, polish_steps=args.polish_steps,
                        transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None,
-                       max_memory=args.memory, devices=args.devices)
+                       max_memory=args.memory, devices=args.devices,
+                       retry=not args.no_retry)
     spec = data_spec(args)
     if args.validate:
         batch, validate = load_batches([args.files, args.validate], spec)

@@ -64,6 +64,8 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
+    if args.laws is not None and not args.generalize:
+        raise InputError("--laws sets the form of the laws of --generalize: give both")
     bounds = parse_bounds(args.bounds, model)
     spec = data_spec(args)
     data = load_tests(args.files, spec, args.memory)
@@ -102,7 +104,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
         swarm_dtype=args.swarm_dtype, restarts=args.restarts, devices=args.devices,
         max_memory=args.memory, chunk_size=args.chunk_size, journal=journal,
-        resume=args.resume,
+        resume=args.resume, retry=not args.no_retry,
     )
     batch, rows = data, None
     if streamed:  # the loops of an even sample of the tests
@@ -113,7 +115,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         say(f"fitting current-dependent laws ({args.generalize})...")
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
         gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
-                        degrees=args.degrees)
+                        degrees=args.degrees, laws=args.laws)
     files = {"fit.json": result.to_json(generalized=gm).encode(),
              "fit.csv": result.to_csv().encode()}
     if not args.no_plots:
@@ -219,7 +221,8 @@ def _run_identify(args, model, bounds, batch, out: OutputDir) -> int:
                          "and polish: leave --method and --swarm at their defaults")
     say(f"identifying {model.name} as laws of the command from {C} record"
         f"{'s' if C != 1 else ''} (lag: {args.lag})...")
-    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, bounds=bounds, transient=args.transient,
+    gm = identify(batch, model, lag=args.lag, degrees=args.degrees, laws=args.laws, bounds=bounds,
+                  transient=args.transient,
                   seed=args.seed, n_particles=args.particles,
                   max_generations=args.generations or args.max_generations or 200,
                   restarts=args.restarts)

@@ -24,6 +24,7 @@ from ._parse import (
     one_line,
     parse_degrees,
     parse_lag,
+    parse_laws,
     positive_int,
     show_warning,
     transient,
@@ -59,8 +60,13 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("--swarm", choices=("separable", "full"), default="separable",
                    help="separable: variable projection over the linear parameters (default); "
                    "full: the paper's swarm over all parameters")
-    p.add_argument("--restarts", type=positive_int, default=1, metavar="K",
-                   help="independent swarms per test, best one polished (default 1)")
+    p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
+                   help="independent swarms per test, best one polished (default 1; 2 for "
+                   "an ODE model on a single test)")
+    p.add_argument("--no-retry", action="store_true",
+                   help="do not polish each test again from its neighbours' optima (the "
+                   "default retry finds the optima one swarm misses and warns where the two "
+                   "results disagree)")
     p.add_argument("--swarm-dtype", choices=("float64", "float32"), default=None,
                    help="precision of the swarm's search (default float64; float32 is about "
                    "twice as fast; the polish and the results stay float64)")
@@ -84,6 +90,13 @@ def _fit_parser(sub, common) -> None:
                    help="polynomial degree of the named parameters' laws of the current or "
                    "command (0: constant; default per model, e.g. Spencer's c0, c1, alpha "
                    "linear in a command voltage)")
+    p.add_argument("--laws", type=parse_laws, metavar="auto|fixed|NAME=KIND,...",
+                   help="form of the laws of --generalize: 'auto' (default for laws of the "
+                   "current) chooses each parameter's among polynomial degree 0-2, "
+                   "exponential and saturating by the lowest BIC of the per-test values (shown "
+                   "in the summary and fit.json; --degrees fixes the named ones); 'fixed': the "
+                   "model's default degrees (default for a time-varying command); NAME=KIND "
+                   "with KIND poly, exp or sat, the others fixed")
     p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")
@@ -139,8 +152,12 @@ def _compare_parser(sub, common) -> None:
                    "two-step,joint (default) or none")
     p.add_argument("--method", choices=("pso", "pso+lm", "lm"), default="pso+lm",
                    help="per-test fit: swarm, swarm then polish (default), or polish alone")
-    p.add_argument("--restarts", type=positive_int, default=1, metavar="K",
-                   help="independent swarms per test and model, best one polished (default 1)")
+    p.add_argument("--restarts", type=positive_int, default=None, metavar="K",
+                   help="independent swarms per test and model, best one polished (default 1; "
+                   "2 for an ODE model on a single test)")
+    p.add_argument("--no-retry", action="store_true",
+                   help="do not polish each test again from its neighbours' optima (as "
+                   "`mrjax fit`)")
     p.add_argument("--max-generations", type=positive_int, default=200, metavar="N",
                    help="cap on swarm generations with the statistical stop (default 200)")
     p.add_argument("--particles", type=positive_int, default=50, metavar="N",

@@ -186,6 +186,23 @@ def parse_degrees(text: str) -> dict[str, int]:
     return out
 
 
+def parse_laws(text: str) -> str | dict[str, str]:
+    """`--laws`: `auto` (every law's form chosen by the data), `fixed` (the model's default
+    degrees) or `NAME=KIND,...` (KIND `poly`, `exp` or `sat`: checked by `generalize`)."""
+    t = text.strip().lower()
+    if t in ("auto", "fixed"):
+        return t
+    out: dict[str, str] = {}
+    for item in text.split(","):
+        name, sep, kind = item.partition("=")
+        if not sep or not name.strip() or not kind.strip():
+            raise argparse.ArgumentTypeError(
+                f"expected 'auto', 'fixed' or NAME=KIND,... (KIND poly, exp or sat), got "
+                f"{item!r}")
+        out[name.strip()] = kind.strip().lower()
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Option groups shared by commands
 

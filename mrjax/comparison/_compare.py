@@ -22,7 +22,7 @@ from ._result import CompareResult
 FIT_OPTIONS = ("method", "swarm", "polish", "swarm_mode", "transient", "n_particles",
                "max_generations", "generations", "pso_params", "polish_steps", "polish_tol",
                "uncertainty", "progress", "devices", "swarm_dtype", "swarm_view", "restarts",
-               "max_memory", "chunk_size")
+               "max_memory", "chunk_size", "retry")
 #: Options of `mrjax.generalize.generalize` that `compare` passes on.
 GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "swarm", "polish", "n_particles",
                       "max_generations", "pso_params", "restarts", "polish_steps", "tol",
@@ -182,9 +182,9 @@ def compare(
     - `**fit_options`: options of `mrjax.fit`, the same for every model (`method`,
         `swarm_mode`, `transient`, `n_particles`, `max_generations`, `generations`,
         `pso_params`, `polish_steps`, `uncertainty`, `progress`, `devices`, `swarm_dtype`,
-        `restarts`, `max_memory`, `chunk_size`: each model's fit runs in chunks of bounded
-        memory). With `transient`, the criteria and held-out scores use the same scored
-        samples as the fit.
+        `restarts`, `retry`, `max_memory`, `chunk_size`: each model's fit runs in chunks of
+        bounded memory; the defaults are `mrjax.fit`'s). With `transient`, the criteria and
+        held-out scores use the same scored samples as the fit.
 
     **Returns:** a :class:`CompareResult` (`.table()`, `.summary()`, `.ranking`,
     `.to_dict()`, `.to_csv()`, `.figures()`).

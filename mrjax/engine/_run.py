@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from .._errors import InputError
 from .._runtime import release_code
 from ..refine import solve_box, status_name
 from ._problem import AbstractProblem, Outcome, StageOutcome
@@ -35,12 +36,15 @@ def solve(
     key: Any = None,
     progress: bool | None = False,
     callback: Callable | None = None,
+    start: np.ndarray | None = None,
 ) -> Outcome:
     """Identify `problem`'s unknowns on every unit at once: the one pipeline of mrjax.
 
     1. **Swarm** (`swarm` given): the batched particle swarm (`mrjax.pso.swarm`) on the
         records' views (or the records), `swarm.restarts` independent swarms per unit in one
-        compiled program, the best kept; without a swarm the problem's neutral start.
+        compiled program, the best kept; without a swarm the `start` given (e.g. a retry from
+        other units' optima, see `mrjax.fitting.retry_starts`) or the problem's neutral
+        start.
     2. **Start**: the problem ranks its candidates (the swarm's best, a start it was given)
         on the full records (:meth:`AbstractProblem.choose_start`).
     3. **Polish** (`polish` given): bounded Levenberg-Marquardt (`mrjax.refine.solve_box`) on
@@ -52,7 +56,8 @@ def solve(
     **Arguments:** `problem` an :class:`AbstractProblem`; `swarm`, `polish` the settings of
     the stages that run (None: skipped); `uncertainty`; `key` the swarm's PRNG key (one, or
     one per swarm row); `progress` a progress bar of the swarm (None: on a terminal);
-    `callback` the swarm's host callback.
+    `callback` the swarm's host callback; `start` (U, K) the unknowns to polish from instead
+    of a swarm's (then `swarm` must be None; the start's `source` is `"given"`).
 
     **Returns:** an :class:`Outcome` (the caller assembles its result from it), with
     `timings` [s] of `swarm`, `start`, `polish_view`, `polish`, `uncertainty`.
@@ -61,7 +66,11 @@ def solve(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     sw = None
-    if swarm is not None:
+    if start is not None:
+        if swarm is not None:
+            raise InputError("solve: give a swarm or a start, not both")
+        z, source = np.asarray(start, float), "given"
+    elif swarm is not None:
         sw, _ = run_swarm(problem, swarm, key, progress=progress, callback=callback)
         z, source = sw.z, "swarm"
         timings["swarm"] = time.perf_counter() - t0

@@ -29,7 +29,10 @@ class Swarm(eqx.Module):
     - `generations`: run exactly this many generations, no statistical stop (benchmarks), or
         None.
     - `restarts`: independent swarms per unit (condition, or the whole data of a joint fit),
-        one compiled program; the best is polished (default 1).
+        one compiled program; the best is polished. None (default): the problem's choice
+        (per test: `mrjax.fitting.default_restarts`, one swarm per test on a batch of tests
+        whose optima seed each other's retry, two for a dynamic model on one test; 1 for joint
+        laws).
     - `mode`: `"separable"` (variable projection over the parameters the force is linear in;
         default) or `"full"` (the paper's swarm over every parameter). Joint laws always
         solve their linear laws by least squares.
@@ -48,7 +51,7 @@ class Swarm(eqx.Module):
     n_particles: int = eqx.field(static=True, default=50)
     max_generations: int = eqx.field(static=True, default=200)
     generations: int | None = eqx.field(static=True, default=None)
-    restarts: int = eqx.field(static=True, default=1)
+    restarts: int | None = eqx.field(static=True, default=None)
     mode: str = eqx.field(static=True, default="separable")
     params: PSOParams | None = None
     view: bool | None = eqx.field(static=True, default=None)
@@ -57,7 +60,9 @@ class Swarm(eqx.Module):
     def __check_init__(self):
         for name in ("n_particles", "max_generations", "restarts"):
             v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or v < 1:
+            if v is None and name == "restarts":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v or v < 1:
                 raise InputError(f"{name} must be an integer >= 1, got {v!r}")
         g = self.generations
         if g is not None and (isinstance(g, bool) or int(g) != g or g < 1):
@@ -67,6 +72,11 @@ class Swarm(eqx.Module):
         if self.params is not None and not isinstance(self.params, PSOParams):
             raise InputError(f"params must be a mrjax.pso.PSOParams, got "
                              f"{type(self.params).__name__}")
+
+    @property
+    def n_restarts(self) -> int:
+        """`restarts`, 1 where it is None (the problem kinds resolve None before a swarm)."""
+        return 1 if self.restarts is None else int(self.restarts)
 
     @property
     def generation_cap(self) -> int:
@@ -84,13 +94,22 @@ class Polish(eqx.Module):
         `mrjax.refine.lm_solve`; default 1e-6). A first polish on the swarm's views stops at a
         multiple of it and the full records are refined (see `mrjax.engine.solve`).
     - `uncertainty`: std-errors, intervals and identifiability at the result (default True).
+    - `retry`: per-test fits only: after the polish, polish every test once more from the best
+        of its neighbours' optima (`mrjax.fitting.retry_starts`: the optima of the tests
+        nearest in current, frequency and amplitude, their linear parameters solved on the
+        test, ranked on its view) and keep the better; the two results are the evidence of a
+        possible local optimum (`FitResult.starts_rms`, a warning where they disagree by more
+        than `mrjax.fitting.SPREAD_MARGIN`). Default True; needs at least two tests.
     """
 
     max_steps: int = eqx.field(static=True, default=200)
     tol: float = eqx.field(static=True, default=DEFAULT_TOL)
     uncertainty: bool = eqx.field(static=True, default=True)
+    retry: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
+        if not isinstance(self.retry, bool):
+            raise InputError(f"polish retry must be True or False, got {self.retry!r}")
         v = self.max_steps
         if isinstance(v, bool) or int(v) != v or v < 1:
             raise InputError(f"polish max_steps must be an integer >= 1, got {v!r}")
@@ -124,8 +143,8 @@ def settings(
     `swarm`, `polish` settings objects (`polish=False`: no polish, `True`: the default); the
     defaults of the caller; keywords: `n_particles`, `max_generations`, `generations`,
     `restarts`, `swarm_mode`, `pso_params`, `swarm_view`, `swarm_dtype` (onto :class:`Swarm`),
-    `polish_steps`, `polish_tol`/`tol`, `uncertainty` (onto :class:`Polish`); None leaves the
-    object's value.
+    `polish_steps`, `polish_tol`/`tol`, `uncertainty`, `retry` (onto :class:`Polish`); None
+    leaves the object's value.
 
     **Returns:** `(swarm or None, polish or None, uncertainty)`: None where the stage does not
     run. Raises :class:`mrjax.InputError` for an unknown method or a bad value.
@@ -146,10 +165,11 @@ def settings(
     run_polish = polish is not False and method != "pso"
     po = polish if isinstance(polish, Polish) else (polish_default or Polish())
     tol = k.get("polish_tol", k.get("tol"))
-    po = _replace(po, max_steps=k.get("polish_steps"), tol=tol, uncertainty=k.get("uncertainty"))
+    po = _replace(po, max_steps=k.get("polish_steps"), tol=tol, uncertainty=k.get("uncertainty"),
+                  retry=k.get("retry"))
     return (None if method == "lm" else sw), (po if run_polish else None), po.uncertainty
 
 
 _KEYWORDS = frozenset({"n_particles", "max_generations", "generations", "restarts", "swarm_mode",
                        "pso_params", "swarm_view", "swarm_dtype", "polish_steps", "polish_tol",
-                       "tol", "uncertainty"})
+                       "tol", "uncertainty", "retry"})

@@ -131,10 +131,10 @@ def run_swarm(problem: AbstractProblem, settings: Swarm, key: Any, *,
         if bar is not None:
             bar.close()
     z, rms = problem.from_swarm(setup, res.position, res.fitness)
-    rows = best_restart(problem.n_real, settings.restarts, problem.n_units, rms)
+    rows = best_restart(problem.n_real, settings.n_restarts, problem.n_units, rms)
     out = SwarmOutcome(
         z=np.asarray(z, float)[rows], rms=np.asarray(rms, float)[rows],
         generations=np.asarray(res.generations)[rows],
         stopped_by_criterion=np.asarray(res.stopped_by_criterion)[rows],
-        history=np.asarray(res.history)[rows], restarts=settings.restarts)
+        history=np.asarray(res.history)[rows], restarts=settings.n_restarts)
     return out, setup

@@ -13,8 +13,10 @@ condition axis into chunks sized by a memory budget (`chunk_plan`, `plan_chunks`
 lets an interrupted fit resume), builds each chunk's per-test problem (:class:`TestsProblem`)
 and runs the engine (`mrjax.engine.solve`) on it; it returns a :class:`FitResult`, and
 :func:`save` / `FitResult.to_json` are the one writer of `fit.json`. :func:`fit_swarm` runs the
-swarm stage alone. The package is named `fitting` so that the function `mrjax.fit` does not
-hide a module.
+swarm stage alone. With two or more tests every test is then polished once more from the best
+of its neighbours' optima (:func:`retry_starts`), the better kept and both reported
+(`FitResult.starts_rms`, a warning where they disagree). The package is named `fitting` so that
+the function `mrjax.fit` does not hide a module.
 """
 
 from ._chunks import chunk_plan as chunk_plan
@@ -28,9 +30,16 @@ from ._plan import condition_bytes as condition_bytes
 from ._plan import default_budget as default_budget
 from ._plan import parse_memory as parse_memory
 from ._plan import plan_chunks as plan_chunks
+from ._problem import AUTO_SWARMS as AUTO_SWARMS
 from ._problem import ModelSwarm as ModelSwarm
 from ._problem import TestsProblem as TestsProblem
+from ._problem import default_restarts as default_restarts
 from ._problem import fit_swarm as fit_swarm
 from ._problem import tests_problem as tests_problem
 from ._result import FitResult as FitResult
 from ._result import save as save
+from ._retry import RETRY_DONORS as RETRY_DONORS
+from ._retry import SPREAD_MARGIN as SPREAD_MARGIN
+from ._retry import neighbours as neighbours
+from ._retry import retry_starts as retry_starts
+from ._retry import spread_warnings as spread_warnings

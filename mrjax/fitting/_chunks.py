@@ -61,8 +61,9 @@ import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, Source, as_batch
-from ..engine import Polish, Swarm, row_keys
+from ..engine import Polish, Swarm, row_keys, solve
 from ..models import AbstractModel, get
+from ..objective import nrmse
 from ..parallel import pad_conditions, resolve_devices, take_conditions
 from ._journal import Journal, fingerprint
 from ._plan import (
@@ -80,7 +81,16 @@ from ._plan import (
 )
 from ._problem import TestsProblem
 from ._result import FitResult
-from ._run import Run, fit_chunk, make_run, problem_of
+from ._retry import merge, neighbours, retry_starts
+from ._run import (
+    Run,
+    fit_chunk,
+    make_run,
+    problem_of,
+    resolve_run,
+    uncertainty_fields,
+    wants_retry,
+)
 
 
 def _bar(enabled: bool | None, plan: ChunkPlan):
@@ -110,7 +120,7 @@ def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
     reading's `extra_per_condition` bytes)."""
     budget = None if max_memory is None else parse_memory(max_memory)
     sw = run.swarm
-    k = sw.restarts if sw is not None else 1
+    k = sw.n_restarts if sw is not None else 1
     t_swarm = whole.view.batch.length if whole.view is not None else whole.source.length
     dtype = sw.dtype if sw is not None else None
     lanes = max(1, VECTOR_BYTES // (np.dtype(dtype).itemsize if dtype is not None else 8))
@@ -140,7 +150,9 @@ def chunk_plan(model: str | AbstractModel, data: Any, *, method: str = "pso+lm",
     run = make_run(method=method, swarm=swarm, polish=polish, key=None, seed=seed,
                    bounds=bounds, transient=transient, devices=None, progress=False,
                    callback=None, **keywords)
-    whole = problem_of(get(model), as_batch(data), run)
+    model, data = get(model), as_batch(data)
+    run = resolve_run(run, model, data.n_conditions)
+    whole = problem_of(model, data, run)
     n_dev = 1 if devices is None else len(resolve_devices(devices))
     return _plan(whole, run, n_dev, max_memory, chunk_size)
 
@@ -162,7 +174,12 @@ def fit_in_chunks(
     t0 = time.perf_counter()
     if resume and journal is None:
         raise InputError("resume needs a journal directory (journal=...)")
-    k = run.swarm.restarts if run.swarm is not None else 1
+    run = resolve_run(run, model, data.n_conditions)
+    retry = wants_retry(run, model, data.n_conditions)
+    unc = run.uncertainty
+    if retry:  # std-errors once, at the better of the two starts
+        run = dataclasses.replace(run, uncertainty=False)
+    k = run.swarm.n_restarts if run.swarm is not None else 1
     n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
     # one stream per swarm row, split once for the whole batch (from the seed without a key)
     key = int(run.seed) if run.key is None else run.key
@@ -195,18 +212,22 @@ def fit_in_chunks(
     done = jr.finished(whole.model) if jr is not None else {}
     rows_keys = keys.reshape(k, C, 2)
     parts: list[FitResult] = []
+
+    def chunk_of(j: int):
+        start, stop = plan.bounds(j)
+        rows = np.arange(start, stop)
+        chunk, _, n = pad_conditions(take(rows), None, plan.size)
+        return chunk, np.concatenate([rows, np.full(plan.size - n, rows[-1])]), n
+
     bar = _bar(run.progress, plan)
     try:
         if bar is not None and done:
             bar.update(sum(r.n_conditions for r in done.values()))
         for j in range(plan.n_chunks):
-            start, stop = plan.bounds(j)
             if j in done:
                 parts.append(done[j])
                 continue
-            rows = np.arange(start, stop)
-            chunk, _, n = pad_conditions(take(rows), None, plan.size)
-            padded = np.concatenate([rows, np.full(plan.size - n, rows[-1])])
+            chunk, padded, n = chunk_of(j)
             chunk_keys = rows_keys[:, padded].reshape(k * plan.size, 2)
             chunk_run = dataclasses.replace(run, key=chunk_keys)
             res = fit_chunk(whole.model, chunk, chunk_run, view_length=view_length,
@@ -222,7 +243,17 @@ def fit_in_chunks(
         if bar is not None:
             bar.close()
     result = FitResult.concatenate(parts)
-    timings = dict(result.timings, total=time.perf_counter() - t0)
+    timings = dict(result.timings)
+    if retry:
+        t1 = time.perf_counter()
+        result = _retry(result, run, whole.model, chunk_of, plan.n_chunks, view_length)
+        timings["retry"] = time.perf_counter() - t1
+        if unc:
+            t2 = time.perf_counter()
+            result = _uncertainty(result, run, whole.model, chunk_of, plan.n_chunks,
+                                  view_length)
+            timings["uncertainty"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
     return dataclasses.replace(result, timings=timings)
 
 
@@ -257,3 +288,44 @@ def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, max_me
     def take(rows):
         return source.batch(rows, length=T, warn=False)
     return probe, plan, view, take, h.hexdigest()
+
+
+def _retry(result: FitResult, run: Run, model: AbstractModel, chunk_of, n_chunks: int,
+           view_length: int | None) -> FitResult:
+    """Every test polished again from the best of its neighbours' optima (`retry_starts`),
+    chunk by chunk (the chunks' shapes: the first pass's compiled polish serves), and per test
+    the better of the two kept (`merge`)."""
+    donors = neighbours(result.current, result.frequency, result.amplitude)
+    theta = np.asarray(result.theta, float)
+    parts: dict[str, list] = {"theta": [], "rms": [], "nrmse": [], "polish_steps": []}
+    status: tuple[str, ...] = ()
+    for j in range(n_chunks):
+        chunk, padded, n = chunk_of(j)
+        problem = problem_of(model, chunk, run, view_length=view_length, checked=True)
+        z0, _ = retry_starts(problem, donors, theta, padded[:n])
+        out = solve(problem, swarm=None, polish=run.polish, uncertainty=False, start=z0)
+        parts["theta"].append(out.z[:n])
+        parts["rms"].append(out.rms[:n])
+        parts["nrmse"].append(np.asarray(nrmse(out.rms, problem.batch.force,
+                                               problem.placed_mask))[:n])
+        parts["polish_steps"].append(np.asarray(out.steps, int)[:n])
+        status += tuple(out.status[:n])
+    again = dataclasses.replace(result, polish_status=status,
+                                **{k: np.concatenate(v) for k, v in parts.items()})
+    return merge(result, again)
+
+
+def _uncertainty(result: FitResult, run: Run, model: AbstractModel, chunk_of, n_chunks: int,
+                 view_length: int | None) -> FitResult:
+    """The std-errors, intervals and identifiability of `result`, chunk by chunk."""
+    theta = np.asarray(result.theta, float)
+    fields: dict[str, list] = {}
+    for j in range(n_chunks):
+        chunk, padded, n = chunk_of(j)
+        problem = problem_of(model, chunk, run, view_length=view_length, checked=True)
+        z = theta[padded]
+        if problem.n_units > z.shape[0]:  # device padding repeats the last condition
+            z = np.concatenate([z, np.repeat(z[-1:], problem.n_units - z.shape[0], axis=0)])
+        for k, v in uncertainty_fields(problem, z, n).items():
+            fields.setdefault(k, []).append(v)
+    return dataclasses.replace(result, **{k: np.concatenate(v) for k, v in fields.items()})

@@ -40,6 +40,7 @@ def fit(
     polish_steps: int | None = None,
     polish_tol: float | None = None,
     uncertainty: bool | None = None,
+    retry: bool | None = None,
     progress: bool | None = False,
     devices: Sequence | None = None,
     callback: Callable | None = None,
@@ -64,10 +65,11 @@ def fit(
         (swarm only), or `"lm"` (polish alone from the model's default start: it shows why the
         swarm is needed). Where `bounds` exclude the default start, it is clipped onto them.
     - `swarm`: a :class:`mrjax.Swarm` (default `Swarm()`: 50 particles, at most 200
-        generations with the statistical stop, one swarm per test, separable, a view of the
-        records for the ODE models).
+        generations with the statistical stop, one swarm per test (two for an ODE model on a
+        single test, `mrjax.fitting.default_restarts`), separable, a view of the records for
+        the ODE models).
     - `polish`: a :class:`mrjax.Polish` (default `Polish()`: at most 200 steps, tol 1e-6,
-        std-errors).
+        std-errors, the retry from the neighbours' optima).
     - `key`: JAX PRNG key; default `jax.random.key(seed)`. Same key, same result.
     - `seed`: integer seed used when `key` is None, and recorded in the result.
     - `bounds`: `(lower, upper)`, (P,) arrays or dicts by name, SI units (default
@@ -78,9 +80,9 @@ def fit(
         stop; for benchmarks), `pso_params` (:class:`mrjax.pso.PSOParams`), `restarts`
         (independent swarms per condition in one compiled program, the best polished; guards
         the many-parameter ODE models against a swarm that ends in a poor basin; the reported
-        generations, stop flag and history are the chosen swarm's), `swarm_view` (score the
-        swarm and a first polish on a subsampled view of each record, about 128 samples per
-        period, the first whole periods up to about 1,000 samples, see
+        generations, stop flag and history are the chosen swarm's; None: the default above),
+        `swarm_view` (score the swarm and a first polish on a subsampled view of each record,
+        about 128 samples per period, the first whole periods up to about 1,000 samples, see
         `mrjax.data.swarm_view`; None: for the ODE models; every reported RMS, including
         `pso_rms`, is on the full record), `swarm_dtype` (e.g. `"float32"`: about twice as
         fast on CPU; the swarm's best positions are re-scored, polished and reported in
@@ -89,7 +91,10 @@ def fit(
         this fraction, see `mrjax.refine.lm_solve`; with a swarm view a first polish on the
         view stops at `VIEW_TOL_FACTOR` (10) times it, then the full record is refined to
         `FULL_TOL_FACTOR` (100) times it, in at most `FULL_MAX_STEPS` (4) steps),
-        `uncertainty` (std-errors and intervals; also for `method="pso"`): fields of `polish`.
+        `uncertainty` (std-errors and intervals; also for `method="pso"`), `retry` (polish
+        every test again from the best of its neighbours' optima, see
+        `mrjax.fitting.retry_starts`; the better is kept and both are reported in
+        `FitResult.starts_rms`, with a warning where they disagree): fields of `polish`.
     - `progress`: show a progress bar (None: only on a TTY).
     - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
         `jax.Device` (default: one device); see `mrjax.parallel`. Same key, same result.
@@ -129,7 +134,7 @@ def fit(
                    max_generations=max_generations, generations=generations,
                    pso_params=pso_params, restarts=restarts, swarm_view=swarm_view,
                    swarm_dtype=swarm_dtype, polish_steps=polish_steps, polish_tol=polish_tol,
-                   uncertainty=uncertainty)
+                   uncertainty=uncertainty, retry=retry)
     data = data if isinstance(data, Source) else as_batch(data)
     return fit_in_chunks(get(model), data, run, max_memory=max_memory,
                          chunk_size=chunk_size, journal=journal, resume=resume)

@@ -149,7 +149,7 @@ def condition_bytes(p: TestsProblem, run: Run) -> int:
         t_swarm = p.view.batch.length if p.view is not None else T
         dtype = run.swarm.dtype
         itemsize = np.dtype(dtype).itemsize if dtype is not None else 8
-        swarm = (run.swarm.restarts * run.swarm.n_particles * t_swarm * SWARM_WORDS
+        swarm = (run.swarm.n_restarts * run.swarm.n_particles * t_swarm * SWARM_WORDS
                  * itemsize)
     return int(swarm + 8 * T * (RECORD_WORDS + JACOBIAN_WORDS * P))
 

@@ -36,6 +36,24 @@ from ..refine import FULL_MAX_STEPS, VIEW_TOL_FACTOR, uncertainty
 AUTO_PAGE = 8
 
 
+#: `restarts=None` of a per-test fit: a dynamic model's swarms per test are this many over
+#: the whole batch, at least one per test (see :func:`default_restarts`).
+AUTO_SWARMS = 2
+
+
+def default_restarts(model: AbstractModel, n_conditions: int) -> int:
+    """Swarms per test when `mrjax.Swarm(restarts=None)` (the default of `mrjax.fit`, the CLI
+    and `mrjax.compare`): 1 for a static model; for a dynamic model `ceil(AUTO_SWARMS / C)`
+    (2 for one test, 1 from two tests on): on a batch the tests' optima seed each other's
+    retry (`mrjax.Polish(retry=True)`, see `mrjax.fitting.retry_starts`), which finds the
+    optima that one swarm per test misses (on the 30 UTFSM tests: every missed modified
+    Bouc-Wen test of seeds 0-4, where two swarms per test still missed one) at a fraction of
+    the cost of a second swarm per test; a lone test has no neighbour and gets two swarms."""
+    if not model.dynamic:
+        return 1
+    return max(1, -(-AUTO_SWARMS // max(int(n_conditions), 1)))
+
+
 def auto_page_size(model: AbstractModel, n_conditions: int) -> int | None:
     """Conditions per page for the batched swarm and the view polish of `model` on
     `n_conditions` (see `mrjax.pso.swarm`'s `page_size`): `AUTO_PAGE` (8) for a dynamic model
@@ -141,8 +159,8 @@ class TestsProblem(AbstractProblem):
 
     def swarm_setup(self, swarm: Swarm) -> SwarmSetup:
         src = self.source if self.view is None else self.view.batch
-        if swarm.restarts > 1:  # every condition `restarts` times: copy k of i at row k*n + i
-            src = src.subset(np.tile(np.arange(self.n_real), swarm.restarts))
+        if swarm.n_restarts > 1:  # every condition `restarts` times: copy k of i at row k*n + i
+            src = src.subset(np.tile(np.arange(self.n_real), swarm.n_restarts))
             batch, mask = _place(src, fit_mask(src, self.transient), self.devices)
         elif self.view is not None:
             batch, mask = _place(src, self.view.mask, self.devices)
@@ -159,6 +177,23 @@ class TestsProblem(AbstractProblem):
 
     def from_swarm(self, setup: SwarmSetup, position, fitness):
         return swarm_params(setup, position, fitness)
+
+    def rank(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Candidate parameters of every unit scored where the swarm scores them (each unit's
+        view, or its record; the swarm's integration), their linear parameters solved on the
+        unit (separable mode).
+
+        **Arguments:** `theta` (U, M, P) M candidates per unit [SI] (U the units as placed,
+        device padding included), inside the bounds.
+
+        **Returns:** `(theta (U, M, P), rms (U, M) [N])`: the candidates as scored and their
+        RMS (`inf` where not finite).
+        """
+        setup = self.swarm_setup(Swarm(mode=self.mode))
+        pos = swarm_position(setup.objective, np.asarray(theta, float))
+        th, rms = _rank(setup.objective, jax.device_put(np.moveaxis(pos, 1, 0)), setup.data)
+        th, rms = np.moveaxis(np.asarray(th), 0, 1), np.asarray(rms).T
+        return th, np.where(np.isfinite(rms), rms, np.inf)
 
     def default_start(self) -> np.ndarray:
         start = np.clip(self.model.default_start(), self.lower, self.upper)
@@ -229,6 +264,31 @@ def tests_problem(
     view = swarm_view(data, transient, length=view_length) if use_view else None
     return TestsProblem(model, data, mask, lo, hi, view=view, transient=transient,
                         devices=devices, mode=swarm.mode if swarm is not None else "separable")
+
+
+def swarm_position(obj: AbstractObjective, theta: np.ndarray) -> np.ndarray:
+    """The swarm positions (..., D) of parameters `theta` (..., P) [SI] for the objective `obj`
+    of :func:`swarm_objective`: the nonlinear parameters (their logarithms where searched so)
+    for the separable objective, `theta` itself for the full one, a dummy for a fully linear
+    model."""
+    if isinstance(obj, SeparableObjective):
+        nl = obj.model.nonlinear_index
+        logs = np.asarray(obj.log_mask or (False,) * len(nl), bool)
+        v = theta[..., nl]
+        return np.where(logs, np.log(np.where(logs, np.maximum(v, 1e-300), 1.0)), v)
+    if isinstance(obj, LinearObjective):
+        return np.zeros(theta.shape[:-1] + (1,))
+    return theta
+
+
+@eqx.filter_jit
+def _rank(obj, position, data):
+    """`(theta (M, U, P), rms (M, U))` of candidate positions (M, U, D): one candidate of
+    every unit at a time (`lax.map`: the memory of one swarm generation of U particles)."""
+    def one(pos):
+        return jax.vmap(obj.to_params)(pos, data), jax.vmap(obj)(pos, data)
+
+    return jax.lax.map(one, position)
 
 
 @eqx.filter_jit

@@ -18,6 +18,7 @@ from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model, source_of
+from ._retry import spread_warnings
 
 
 def _finite_median(a: np.ndarray) -> float:
@@ -56,6 +57,10 @@ class FitResult:
     - `bounds`: the search box, `{"lower": (P,), "upper": (P,)}` [SI], shared by all
         conditions (a dict, so that per-condition slicing leaves it whole); `None` when not
         known. :meth:`warnings` uses it.
+    - `starts_rms` (C, S) [N]: the RMS on the full record of each polished start (the swarm's,
+        then the retry's from a neighbour's optimum, `mrjax.Polish(retry=True)`); `rms` is
+        their minimum; a spread above `mrjax.fitting.SPREAD_MARGIN` is warned about (a
+        possible local optimum). None without a retry.
     """
 
     model: AbstractModel
@@ -83,6 +88,7 @@ class FitResult:
     timings: dict[str, float]
     estimated: np.ndarray | None = None
     bounds: dict[str, Any] | None = None
+    starts_rms: np.ndarray | None = None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -224,6 +230,9 @@ class FitResult:
             bounds, a fixed parameter, excepted): the optimum may lie outside the box.
         - `"not_identifiable"`: a parameter on a numerically null direction of $J^T J$ or
             correlated above `mrjax.refine.CORR_LIMIT` with another (its std-error is null).
+        - `"local_optimum"`: tests whose polished starts (the swarm's and the retry's from a
+            neighbour's optimum, `starts_rms`) end more than `mrjax.fitting.SPREAD_MARGIN`
+            apart (`mrjax.fitting.spread_warnings`).
         - `"too_few_currents"` (with `generalized`, a `GeneralizedModel` of these fits): laws
             whose degree needs more distinct currents than the tests have
             (`GeneralizedModel.law_warnings`).
@@ -265,6 +274,7 @@ class FitResult:
                 "polish_steps": int(self.polish_steps[i]),
                 "identifiable": dict(zip(names, self.identifiable[i])),
                 "estimated": self._estimated_names(i),
+                "starts_rms_N": None if self.starts_rms is None else list(self.starts_rms[i]),
             })
         doc = {
             "model": self.model.name,
@@ -357,6 +367,7 @@ def _warnings(res: FitResult, generalized: Any) -> list[dict[str, Any]]:
             "direction of J^T J or a near-perfect correlation with another parameter, so the "
             "data do not determine their values (null std-errors)",
             "conditions": tests, "parameters": params})
+    out.extend(spread_warnings(res))
     if generalized is not None:  # a GeneralizedModel (not imported: generalize uses fitting)
         for w in generalized.law_warnings(res.current):
             out.append(dict(w, conditions=list(res.labels)))

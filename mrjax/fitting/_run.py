@@ -16,7 +16,7 @@ from ..engine import Outcome, Polish, Swarm, settings, solve
 from ..models import AbstractModel
 from ..objective import nrmse
 from ..parallel import unpad
-from ._problem import TestsProblem, tests_problem
+from ._problem import TestsProblem, default_restarts, tests_problem
 from ._result import FitResult
 
 
@@ -101,6 +101,33 @@ def fit_chunk(model: str | AbstractModel, data: Batch, run: Run, *,
     result = assemble(problem, out, run)
     timings = dict(prepare=t_prep, **result.timings, total=time.perf_counter() - t0)
     return dataclasses.replace(result, timings=timings)
+
+
+def resolve_run(run: Run, model: AbstractModel, n_conditions: int) -> Run:
+    """`run` with the problem's choices made for `model` on `n_conditions` tests: the swarms
+    per test where `Swarm.restarts` is None (:func:`default_restarts`)."""
+    sw = run.swarm
+    if sw is None or sw.restarts is not None:
+        return run
+    sw = dataclasses.replace(sw, restarts=default_restarts(model, n_conditions))
+    return dataclasses.replace(run, swarm=sw)
+
+
+def wants_retry(run: Run, model: AbstractModel, n_conditions: int) -> bool:
+    """Whether the fit retries every test from its neighbours' optima
+    (`mrjax.Polish(retry=True)`): with a polish, at least two tests and a parameter the force
+    is not linear in (a fully linear model has one optimum)."""
+    return (run.polish is not None and run.polish.retry and n_conditions >= 2
+            and model.nonlinear_index.size > 0)
+
+
+def uncertainty_fields(problem: TestsProblem, theta: np.ndarray, n: int) -> dict[str, Any]:
+    """`stderr`, `ci95`, `corr`, `identifiable` of the first `n` units of `problem` at
+    `theta` (U, P) (`mrjax.refine.uncertainty`), as `FitResult` holds them."""
+    unc = problem.uncertainty(theta)
+    return {"stderr": np.asarray(unc.stderr, float)[:n], "ci95": np.asarray(unc.ci95, float)[:n],
+            "corr": np.asarray(unc.corr, float)[:n],
+            "identifiable": np.asarray(unc.identifiable, bool)[:n]}
 
 
 def make_run(*, method: str, swarm: Swarm | None, polish: Polish | None, key: Any, seed: int,

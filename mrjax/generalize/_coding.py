@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 from ..models import AbstractModel
 from ..objective import gram_terms, rms_from_gram, solve_normal
 from ..pso import AbstractObjective
-from ._laws import Z_SCALE_MODELS, LawSet, horner, vander
+from ._laws import Z_SCALE_MODELS, LawSet, law_value, vander
 from ._rows import Rows
 
 #: Range [1/m] of delta, the inverse yield displacement of a Bouc-Wen-type model on the
@@ -36,12 +36,19 @@ LOG_FLOOR = 1e-4
 # ------------------------------------------------------------------------------ layout
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Host description of the laws: per parameter its law kind, number of coefficients and
-    interpolation nodes (in the command unit); the node-value <-> coefficient maps."""
+    """Host description of the laws: per parameter its law kind, number of coefficients,
+    interpolation nodes (in the command unit) and the scale of a `"sat"` law (1 elsewhere;
+    all 1 when empty); the node-value <-> coefficient maps."""
 
     kinds: tuple[str, ...]
     sizes: tuple[int, ...]
     nodes: tuple[np.ndarray, ...]
+    scales: tuple[float, ...] = ()
+
+    @property
+    def law_scales(self) -> tuple[float, ...]:
+        """The scale of every law (1 where it has none)."""
+        return tuple(self.scales) or (1.0,) * len(self.kinds)
 
     @property
     def offsets(self) -> np.ndarray:
@@ -61,7 +68,7 @@ class Layout:
         V = np.zeros((self.n, self.n))
         for p, nd in enumerate(self.nodes):
             b = self.block(p)
-            V[np.ix_(b, b)] = vander(nd, self.sizes[p])
+            V[np.ix_(b, b)] = vander(nd, self.sizes[p], self.kinds[p], self.law_scales[p])
         return V
 
     @functools.cached_property
@@ -69,7 +76,7 @@ class Layout:
         return np.linalg.inv(self.V)
 
     def lawset(self, coef) -> LawSet:
-        return LawSet(np.asarray(coef, float), self.kinds, self.sizes)
+        return LawSet(np.asarray(coef, float), self.kinds, self.sizes, self.law_scales)
 
 
 # ------------------------------------------------------------------------------ coding
@@ -97,6 +104,7 @@ class Coding(eqx.Module):
     free: tuple[int, ...] = eqx.field(static=True)
     lag: str = eqx.field(static=True)
     ls: tuple[int, ...] = eqx.field(static=True, default=())
+    scales: tuple[float, ...] = eqx.field(static=True, default=())
 
     @property
     def use_lag(self) -> bool:
@@ -117,12 +125,13 @@ class Coding(eqx.Module):
         return self.Vinv @ self.complete(nu)
 
     def lawset(self, nu) -> LawSet:
-        return LawSet(self.coefficients(nu), self.kinds, self.sizes)
+        return LawSet(self.coefficients(nu), self.kinds, self.sizes, self.scales)
 
     def _law_value(self, coef, p: int, u: float):
         o = int(sum(self.sizes[:p]))
-        v = horner([coef[o + m] for m in range(self.sizes[p])], jnp.asarray(u, coef.dtype), jnp)
-        return jnp.exp(v) if self.kinds[p] == "exp" else v
+        scale = self.scales[p] if self.scales else 1.0
+        return law_value(self.kinds[p], scale, [coef[o + m] for m in range(self.sizes[p])],
+                         jnp.asarray(u, coef.dtype), jnp)
 
     def complete(self, nu):
         """`nu` with the z-scale's derived node value: delta(u0) = beta(u0) + gamma(u0)."""
@@ -201,6 +210,8 @@ class JointObjective(AbstractObjective):
     V_ls: Float[Array, "K K"]
     ls_idx: tuple[int, ...] = eqx.field(static=True)  # node indices solved by LS
     ls_cols: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, power)
+    # per ls_cols entry: 0 for a power of u, else the scale s of a "sat" law's 1 - exp(-u/s)
+    ls_scales: tuple[float, ...] = eqx.field(static=True)
     n_basis: int = eqx.field(static=True)  # leading ls_cols on parameter-free columns
     exp_lin: tuple[tuple[int, int], ...] = eqx.field(static=True)  # (design column, param)
 
@@ -221,14 +232,20 @@ class JointObjective(AbstractObjective):
         for j, q in self.exp_lin:  # linear parameters with an "exp" law: known given nu
             b = b + param(q) * col(j)
 
-        def cols(which):
-            c = [col(j) if m == 0 else col(j) * uT**m for j, m in which]
+        def basis(m, sc):
+            return uT**m if sc == 0 else 1.0 - jnp.exp(-uT / sc)
+
+        def cols(which, scales):
+            c = [col(j) if m == 0 else col(j) * basis(m, sc)
+                 for (j, m), sc in zip(which, scales)]
             return jnp.stack(c, axis=-1) if c else jnp.zeros(rows.x.shape + (0,), rows.x.dtype)
 
         # F-type columns (parameter-free with a data-only command) are computed once under the
         # swarm's vmap over particles; the Z-type ones per particle
-        gr = jax.vmap(gram_terms)(cols(self.ls_cols[:self.n_basis]),
-                                  cols(self.ls_cols[self.n_basis:]), b, rows.force, rows.mask)
+        nb = self.n_basis
+        gr = jax.vmap(gram_terms)(cols(self.ls_cols[:nb], self.ls_scales[:nb]),
+                                  cols(self.ls_cols[nb:], self.ls_scales[nb:]), b, rows.force,
+                                  rows.mask)
         return jax.tree.map(lambda a: jnp.sum(a, axis=0), gr)
 
     def solve(self, position, data):
@@ -336,7 +353,8 @@ def build_objective(
     names, kinds = model.param_names, layout.kinds
     lin = list(model.linear_params)
     n_fixed = len(model.fixed_params)
-    ls_params = [p for p, n in enumerate(names) if n in lin and kinds[p] == "poly"]
+    ls_params = [p for p, n in enumerate(names) if n in lin and kinds[p] != "exp"]
+    scales = layout.law_scales
     derived: tuple = ()
     if z_scale:
         pd, pb, pg = (names.index(k) for k in ("delta", "beta", "gamma"))
@@ -354,7 +372,8 @@ def build_objective(
             if int(k) not in skip:
                 direct.append(int(k))
                 direct_log.append(n in log_params)
-    ls = [(lin.index(names[p]), m, int(layout.block(p)[m])) for p in ls_params
+    ls = [(lin.index(names[p]), m, int(layout.block(p)[m]),
+           scales[p] if kinds[p] == "sat" else 0.0) for p in ls_params
           for m in range(layout.sizes[p])]
     ls.sort(key=lambda e: e[0] >= n_fixed)  # parameter-free (basis) columns first
     ls_idx = tuple(e[2] for e in ls)
@@ -365,9 +384,9 @@ def build_objective(
     coding = Coding(*jax.device_put((np.asarray(nu0, float), np.asarray(layout.Vinv),
                                      np.asarray(eta0, float))),
                     kinds, layout.sizes, tuple(direct), tuple(direct_log), pair_idx, derived,
-                    free, lag, ls_idx)
+                    free, lag, ls_idx, scales)
     return JointObjective(model, coding, jax.device_put(np.asarray(V_ls, float)), ls_idx,
-                          tuple((e[0], e[1]) for e in ls),
+                          tuple((e[0], e[1]) for e in ls), tuple(e[3] for e in ls),
                           sum(e[0] < n_fixed for e in ls), exp_lin)
 
 

@@ -20,12 +20,12 @@ from ..engine import Polish, Swarm, settings
 from ..models import AbstractModel, check_bounds, get
 from ..pso import PSOParams
 from ._coding import LOG_FLOOR, Layout, bounded_box, build_objective
+from ._forms import choose_forms
 from ._generalize import law_uncertainty_of, make_generalized
 from ._joint import N_LEVELS, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, group_currents, nodes
 from ._model import GeneralizedModel, batch_command
 from ._rows import make_rows, packed_rows
-from ._two_step import law_spec
 
 #: Default range of the command filter's rate eta [1/s] searched when the lag is fitted: time
 #: constants from 0.1 ms to 1 s (Spencer et al. 1997: 190 1/s; an RD-1005-3 responds in
@@ -129,7 +129,9 @@ def identify(
         others get :func:`default_degrees` for the command's unit (a voltage: Spencer's c0,
         c1, alpha linear for the modified Bouc-Wen), capped by the distinct constant levels
         when no command varies.
-    - `laws`: parameter name -> `"poly"` (default) or `"exp"`.
+    - `laws`: parameter name -> `"poly"` (default) or `"exp"`, the others by `degrees` and
+        the defaults (`"fixed"`, None); the forms chosen by the data (`"auto"`) and `"sat"`
+        laws need per-test fits at constant commands (`generalize`).
     - `lag`: `"fit"` (default; $\\eta$ searched in `lag_bounds`), a rate [1/s] to fix it, or
         None for no filter. Without a time-varying command the lag has no effect and is not
         fitted.
@@ -186,8 +188,9 @@ def identify(
         per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
         n_levels = group_currents(per)[0].size
     mode, eta0 = _lag_mode(lag, varying, info)
-    kinds, degs = law_spec(model, degrees, laws, n_levels, unit)
-    layout = Layout(kinds, tuple(d + 1 for d in degs), tuple(nodes(lo, hi, d + 1) for d in degs))
+    forms = choose_forms(model, None, None, degrees, laws, n_levels, unit)
+    kinds, degs = forms.kinds, forms.degrees
+    layout = Layout(kinds, forms.sizes, tuple(nodes(lo, hi, d + 1) for d in degs))
     lo_b, hi_b = check_bounds(model, bounds)
     lo_lag, hi_lag = _check_lag_bounds(lag_bounds)
     user = _user_bounded(model, bounds)

@@ -253,7 +253,7 @@ class LawsProblem(AbstractProblem):
 
     def swarm_setup(self, swarm: Swarm) -> SwarmSetup:
         data = self.view if self.view is not None else self.full
-        K = swarm.restarts
+        K = swarm.n_restarts
         rep = jax.device_put(jax.tree.map(
             lambda a: np.broadcast_to(np.asarray(a)[None], (K,) + a.shape), data))
         obj = eqx.tree_at(lambda o: o.model, self.objective, self.swarm_model())
@@ -379,7 +379,7 @@ def solve_laws(problem: LawsProblem, *, swarm: Swarm | None, polish: Polish | No
         swarm = None
     if not coding.n_free:
         polish = None
-    rows = swarm.restarts if swarm is not None else 1
+    rows = swarm.n_restarts if swarm is not None else 1
     out = solve(problem, swarm=swarm, polish=polish, uncertainty=uncertainty,
                 key=row_keys(key, rows))
     nu, eta = problem.laws_of(out.z[0])

@@ -17,7 +17,10 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InputError
 from ..models import AbstractModel, get
 
-LAW_KINDS: tuple[str, ...] = ("poly", "exp")
+LAW_KINDS: tuple[str, ...] = ("poly", "exp", "sat")
+#: Saturation commands [A or V] a `"sat"` law's scale is chosen among, as fractions of the
+#: command range of the data (see `mrjax.generalize.choose_laws`).
+SAT_SCALES: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.5)
 #: Two currents closer than this [A] count as the same current when grouping conditions.
 CURRENT_TOL = 1e-6
 #: Models whose hysteretic variable z has a redundant scale (normalised to |z|max = 1).
@@ -53,26 +56,58 @@ def horner(coefficients, i, xp):
     return acc
 
 
+def law_basis(kind: str, scale: float, i, size: int, xp) -> list:
+    r"""The functions of the command `i` a law is linear in (in its log for `"exp"`): the powers
+    $i^0 \dots i^{size-1}$, or for `"sat"` $1$ and $1 - e^{-i/s}$ (`xp` = np or jnp)."""
+    if kind == "sat":
+        return [xp.ones_like(i), 1.0 - xp.exp(-i / scale)]
+    return [i**m for m in range(size)]
+
+
+def law_value(kind: str, scale: float, coefficients, i, xp):
+    """A law of kind `kind` (and saturation `scale` for `"sat"`) with `coefficients` at the
+    command `i` (`xp` = np or jnp): the one evaluation of every law."""
+    if kind == "sat":
+        return coefficients[0] + coefficients[1] * (1.0 - xp.exp(-i / scale))
+    p = horner(coefficients, i, xp)
+    return xp.exp(p) if kind == "exp" else p
+
+
 @dataclasses.dataclass(frozen=True)
 class Law:
     """A parameter as a function of the coil current i [A].
 
     **Fields:**
 
-    - `kind`: `"poly"`, $p(i) = \\sum_m a_m i^m$, or `"exp"`, $p(i) = \\exp(\\sum_m a_m i^m)$
-        ($\\exp(a + b\\,i)$ at degree 1).
+    - `kind`: `"poly"`, $p(i) = \\sum_m a_m i^m$, `"exp"`, $p(i) = \\exp(\\sum_m a_m i^m)$
+        ($\\exp(a + b\\,i)$ at degree 1), or `"sat"`, $p(i) = a_0 + a_1 (1 - e^{-i/s})$ (a
+        change $a_1$ that saturates above a few times the current $s$).
     - `coefficients`: $a_0, a_1, \\dots$ in ascending powers of i, SI units of the parameter
-        per $A^m$ (`"poly"`) or of its logarithm (`"exp"`).
+        per $A^m$ (`"poly"`) or of its logarithm (`"exp"`); for `"sat"` $a_0, a_1$ in the
+        parameter's units.
+    - `scale`: $s$ of a `"sat"` law, in the command's unit (A or V); None for the others.
 
     Calling a law evaluates it: NumPy in, NumPy out; JAX in (also traced), JAX out.
     """
 
     kind: str
     coefficients: tuple[float, ...]
+    scale: float | None = None
 
     def __post_init__(self):
         if self.kind not in LAW_KINDS:
             raise InputError(f"law kind must be one of {list(LAW_KINDS)}, got {self.kind!r}")
+        if self.kind == "sat":
+            s = self.scale
+            if isinstance(s, bool) or not isinstance(s, (int, float, np.floating)) \
+                    or not (math.isfinite(s) and s > 0):
+                raise InputError(f"a 'sat' law needs a positive scale, got {s!r}")
+            object.__setattr__(self, "scale", float(s))
+            if len(np.ravel(self.coefficients)) != 2:
+                raise InputError(f"a 'sat' law has 2 coefficients, got "
+                                 f"{len(np.ravel(self.coefficients))}")
+        elif self.scale is not None:
+            raise InputError(f"only a 'sat' law has a scale, not {self.kind!r}")
         try:
             coef = tuple(float(c) for c in np.asarray(self.coefficients, float).ravel())
         except (TypeError, ValueError):
@@ -86,18 +121,27 @@ class Law:
 
     @property
     def degree(self) -> int:
-        """Polynomial degree (in i, or in the exponent for `"exp"`)."""
+        """Polynomial degree (in i, or in the exponent for `"exp"`; 1 for `"sat"`)."""
         return len(self.coefficients) - 1
+
+    @property
+    def form(self) -> str:
+        """The law's form in words: `"poly2"`, `"exp1"`, `"sat(0.5)"`."""
+        return f"sat({self.scale:g})" if self.kind == "sat" else f"{self.kind}{self.degree}"
 
     def __call__(self, current):
         """Value of the law at `current` [A] (any shape)."""
         xp = jnp if isinstance(current, jax.Array) else np
         i = current if xp is jnp else np.asarray(current, dtype=float)
-        p = horner(self.coefficients, i, xp)
-        return xp.exp(p) if self.kind == "exp" else p
+        return law_value(self.kind, self.scale or 1.0, self.coefficients, i, xp)
 
     def formula(self, var: str = "i") -> str:
-        """Readable formula, e.g. `'1232 + 1929*i'` or `'exp(4.6 - 0.2*i)'`."""
+        """Readable formula, e.g. `'1232 + 1929*i'`, `'exp(4.6 - 0.2*i)'` or
+        `'120 + 1100*(1 - exp(-i/0.5))'`."""
+        if self.kind == "sat":
+            a, b = self.coefficients
+            return (f"{a:.6g} {'-' if b < 0 else '+'} {abs(b):.6g}*(1 - exp(-{var}/"
+                    f"{self.scale:g}))")
         terms = []
         for m, a in enumerate(self.coefficients):
             mag = f"{abs(a):.6g}"
@@ -109,15 +153,21 @@ class Law:
         return f"exp({s})" if self.kind == "exp" else s
 
     def to_dict(self) -> dict[str, Any]:
-        """`{"law": kind, "degree": d, "coefficients": [a0, a1, ...]}`."""
-        return {"law": self.kind, "degree": self.degree, "coefficients": list(self.coefficients)}
+        """`{"law": kind, "degree": d, "coefficients": [a0, a1, ...]}`, and `"scale"` of a
+        `"sat"` law."""
+        d = {"law": self.kind, "degree": self.degree, "coefficients": list(self.coefficients)}
+        if self.kind == "sat":
+            d["scale"] = self.scale
+        return d
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], name: str = "law") -> Law:
         """Inverse of :meth:`to_dict`; raises :class:`mrjax.InputError` naming `name`."""
         if not isinstance(d, Mapping) or "coefficients" not in d:
             raise InputError(f"law of {name!r} must be an object with 'law' and 'coefficients'")
-        law = cls(str(d.get("law", "poly")), d["coefficients"])
+        scale = d.get("scale")
+        law = cls(str(d.get("law", "poly")), d["coefficients"],
+                  None if scale is None else float(scale))
         if "degree" in d and d["degree"] is not None and int(d["degree"]) != law.degree:
             raise InputError(f"law of {name!r}: degree {d['degree']} does not match "
                              f"{len(law.coefficients)} coefficients")
@@ -126,18 +176,20 @@ class Law:
 
 class LawSet(eqx.Module):
     """All laws of a model as one traceable function: `coef` (V,) concatenated coefficients,
-    `kinds` and `sizes` (number of coefficients) per parameter, static."""
+    `kinds`, `sizes` (number of coefficients) and `scales` (of `"sat"` laws, else 1) per
+    parameter, static."""
 
     coef: Float[Array, " V"]
     kinds: tuple[str, ...] = eqx.field(static=True)
     sizes: tuple[int, ...] = eqx.field(static=True)
+    scales: tuple[float, ...] = eqx.field(static=True, default=())
 
     def __call__(self, current: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape P"]:
         i = jnp.asarray(current, dtype=self.coef.dtype)
+        scales = self.scales or (1.0,) * len(self.kinds)
         cols, o = [], 0
-        for kind, s in zip(self.kinds, self.sizes):
-            p = horner([self.coef[o + m] for m in range(s)], i, jnp)
-            cols.append(jnp.exp(p) if kind == "exp" else p)
+        for kind, s, sc in zip(self.kinds, self.sizes, scales):
+            cols.append(law_value(kind, sc, [self.coef[o + m] for m in range(s)], i, jnp))
             o += s
         return jnp.stack(cols, axis=-1)
 
@@ -252,9 +304,11 @@ def fit_space(theta: np.ndarray, exp_cols: np.ndarray) -> np.ndarray:
     return np.where(e, np.log(np.abs(np.where(e, theta, 1.0))), theta)
 
 
-def vander(i: np.ndarray, size: int) -> np.ndarray:
-    """(len(i), size) Vandermonde matrix in ascending powers."""
-    return np.asarray(i, float)[:, None] ** np.arange(size)[None, :]
+def vander(i: np.ndarray, size: int, kind: str = "poly", scale: float = 1.0) -> np.ndarray:
+    """(len(i), size) design of a law at the commands `i`: the Vandermonde matrix in ascending
+    powers, or the `"sat"` basis (:func:`law_basis`)."""
+    i = np.asarray(i, float)
+    return np.stack(law_basis(kind, scale, i, size, np), axis=-1)
 
 
 def nodes(lo: float, hi: float, size: int) -> np.ndarray:

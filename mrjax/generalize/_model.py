@@ -192,7 +192,8 @@ class GeneralizedModel:
         # a NumPy constant: safe to create inside a trace (no leaked tracer in the cache)
         coef = np.concatenate([np.asarray(law.coefficients, float) for law in laws])
         return LawSet(coef, tuple(law.kind for law in laws),
-                       tuple(len(law.coefficients) for law in laws))
+                      tuple(len(law.coefficients) for law in laws),
+                      tuple(law.scale or 1.0 for law in laws))
 
     def params_at(self, current: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape P"]:
         """Parameters (..., P) at the command `current` (in `command_unit`, A or V) of any
@@ -222,8 +223,8 @@ class GeneralizedModel:
         for name, f in scale.items():
             law = laws[name]
             c = np.asarray(law.coefficients, float)
-            c = c * f if law.kind == "poly" else np.concatenate([[c[0] + np.log(f)], c[1:]])
-            laws[name] = Law(law.kind, c)
+            c = c * f if law.kind != "exp" else np.concatenate([[c[0] + np.log(f)], c[1:]])
+            laws[name] = Law(law.kind, c, law.scale)
         return dataclasses.replace(self, laws=laws, uncertainty=None)
 
     def coefficients(self, name: str) -> tuple[float, ...]:
@@ -439,6 +440,9 @@ class GeneralizedModel:
         lo, hi = self.current_range
         lines.append(f"{self.model.name} generalized ({self.method}), {var} in [{lo:g}, {hi:g}] "
                      f"{self.command_unit}: total RMS {self.total_rms:.4g} N")
+        if "law_criteria" in self.info:
+            lines.append("law forms chosen by the data (lowest BIC of the per-test values): "
+                         + ", ".join(f"{n} {self.laws[n].form}" for n in self.param_names))
         if any(any(v) for v in self.loosely_determined().values()):
             lines.append("* loosely determined: std-error above 2.5 % of the coefficient")
         return "\n".join(lines)
@@ -450,7 +454,7 @@ class GeneralizedModel:
         lag = "" if self.lag is None else f", lag={self.lag:.4g} 1/s"
         return (f"GeneralizedModel(model={self.model.name!r}, method={self.method!r}, "
                 f"unit={self.command_unit!r}{lag}, total_rms={self.total_rms:.4g} N, laws={{"
-                + ", ".join(f"{n}: {law.kind}{law.degree}" for n, law in self.laws.items())
+                + ", ".join(f"{n}: {law.form}" for n, law in self.laws.items())
                 + "})")
 
     def to_dict(self) -> dict[str, Any]:
@@ -464,6 +468,8 @@ class GeneralizedModel:
             "total_rms_N": total,
             "current_range_A": rng if self.command_unit == "A" else None,
             "laws": {n: self.laws[n].to_dict() for n in self.param_names},
+            "law_forms": {n: self.laws[n].form for n in self.param_names},
+            "law_choice": self.info.get("law_choice", "given"),
             "weighting": self.weighting or None,
             "units": {n: u for n, u in zip(self.param_names, self.model.units)},
             "command_unit": self.command_unit,
@@ -471,6 +477,8 @@ class GeneralizedModel:
             "lag_1_s": self.lag,
             "lag_fitted": bool(self.info.get("lag_fitted", False)),
         }
+        if "law_criteria" in self.info:
+            out["law_criteria"] = self.info["law_criteria"]
         if self.uncertainty is not None:
             out.update(self.uncertainty.to_dict())
         return json_safe(out)
@@ -506,7 +514,9 @@ class GeneralizedModel:
                    current_range=tuple(rng), weighting=d.get("weighting") or "",
                    command_unit=unit, lag=None if lag is None else float(lag),
                    uncertainty=LawUncertainty.from_dict(d),
-                   info={"lag_fitted": bool(d.get("lag_fitted", False))})
+                   info={"lag_fitted": bool(d.get("lag_fitted", False)),
+                         **{k: d[k] for k in ("law_choice", "law_criteria")
+                            if d.get(k) is not None and d.get(k) != "given"}})
 
     def to_json(self, **kw) -> str:
         """JSON text of :meth:`to_dict`."""

@@ -33,11 +33,19 @@ def law_spec(model, degrees, laws, n_currents, unit: str = "A"
     for n, k in laws.items():
         if k not in LAW_KINDS:
             raise InputError(f"law of {n!r} must be one of {list(LAW_KINDS)}, got {k!r}")
+        if k == "sat" and n_currents < 3:
+            raise InputError(f"law 'sat' of {n!r} needs at least 3 distinct currents; the "
+                             f"data have {n_currents}")
     dflt = default_degrees(model, unit=unit)
     kinds, degs = [], []
     for n in names:
         kind = laws.get(n, "poly")
-        if n in degrees:
+        if kind == "sat":
+            if n in degrees and degrees[n] != 1:
+                raise InputError(f"a 'sat' law has degree 1 (2 coefficients), not "
+                                 f"{degrees[n]!r} for {n!r}")
+            d = 1
+        elif n in degrees:
             d = degrees[n]
             if isinstance(d, bool) or int(d) != d or d < 0:
                 raise InputError(f"degree of {n!r} must be a non-negative integer, got {d!r}")
@@ -70,9 +78,11 @@ def covariances(result: FitResult, theta: np.ndarray, exp_cols: np.ndarray):
     return corr * se_t[:, :, None] * se_t[:, None, :], ""
 
 
-def two_step_coefficients(theta, cur, kinds, degs, cov, weighting):
-    """Law coefficients (V,) from per-condition parameters (C, P) and support data."""
+def two_step_coefficients(theta, cur, kinds, degs, cov, weighting, scales=None):
+    """Law coefficients (V,) from per-condition parameters (C, P) and support data; `scales`
+    (P,) those of the `"sat"` laws (1 elsewhere)."""
     C, P = theta.shape
+    scales = tuple(scales) if scales else (1.0,) * P
     exp_cols = np.array([k == "exp" for k in kinds])
     sizes = [d + 1 for d in degs]
     levels, gid = group_currents(cur)
@@ -90,7 +100,7 @@ def two_step_coefficients(theta, cur, kinds, degs, cov, weighting):
             y = mean[:, p]
             if exp_cols[p]:
                 y = np.log(y)
-            X = vander(levels, sizes[p])
+            X = vander(levels, sizes[p], kinds[p], scales[p])
             coef[offs[p]:offs[p + 1]] = np.linalg.lstsq(X, y, rcond=None)[0]
     else:
         t = fit_space(theta, exp_cols)
@@ -102,7 +112,8 @@ def two_step_coefficients(theta, cur, kinds, degs, cov, weighting):
             mu = np.linalg.solve(Wu, np.einsum("cij,cj->i", W[gid == u], t[gid == u]))
             X = np.zeros((P, offs[-1]))
             for p in range(P):
-                X[p, offs[p]:offs[p + 1]] = levels[u] ** np.arange(sizes[p])
+                X[p, offs[p]:offs[p + 1]] = vander(levels[u:u + 1], sizes[p], kinds[p],
+                                                   scales[p])[0]
             A += X.T @ Wu @ X
             g += X.T @ Wu @ mu
             su = np.sqrt(np.diag(np.linalg.inv(Wu)))
