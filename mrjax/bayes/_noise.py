@@ -38,7 +38,7 @@ def check_noise(noise: str) -> str:
     return noise
 
 
-def log1m_tanh2(v: Float[ArrayLike, "..."]) -> Float[Array, "..."]:
+def log1m_tanh2(v: Float[ArrayLike, "*S"]) -> Float[Array, "*S"]:
     """$\\log(1 - \\tanh^2 v)$, stable for large |v| (where $\\rho = \\tanh v \\to \\pm 1$)."""
     a = jnp.abs(jnp.asarray(v))
     return 2.0 * (math.log(2.0) - a - jnp.log1p(jnp.exp(-2.0 * a)))
