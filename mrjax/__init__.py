@@ -18,6 +18,7 @@ if _os.environ.get("MRJAX_X64", "1") != "0":
 
 import sys as _sys
 
+from . import bayes as bayes
 from . import comparison as comparison
 from . import data as data
 from . import fitting as fitting
@@ -27,6 +28,7 @@ from . import objective as objective
 from . import pso as pso
 from . import refine as refine
 from ._errors import InputError as InputError
+from .bayes import posterior as posterior
 from .comparison import CompareResult as CompareResult
 from .comparison import compare as compare
 from .fitting import FitResult as FitResult

@@ -133,34 +133,29 @@ def _tick(x):
 
 
 # ------------------------------------------------------------------------------ the program
-def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, imm, key):
-    """Warmup then sampling of one chain of one unit (vmapped at the call site)."""
+def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
+    """Warmup then sampling of one chain of one unit (vmapped at the call site), in the
+    whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`)."""
     import blackjax  # imported here: `import mrjax` does not need it
 
-    logdensity = lambda z: _logdensity(target, prior, unit, z)
+    logdensity = lambda w: _logdensity(target, prior, unit, z0 + L @ w)
     jkey, wkey, skey = jax.random.split(key, 3)
-    eps = jax.random.normal(jkey, z0.shape, z0.dtype)
-    if sampler.dense_mass:
-        w, V = jnp.linalg.eigh(imm)
-        step = V @ (jnp.sqrt(jnp.maximum(w, 0.0)) * eps)
-    else:
-        step = jnp.sqrt(imm) * eps
-    z_try = z0 + JITTER * step
-    z_start = jnp.where(jnp.isfinite(logdensity(z_try)), z_try, z0)
+    w_try = JITTER * jax.random.normal(jkey, z0.shape, z0.dtype)
+    w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
 
     info_fn = (lambda state, info, ad: _tick(info.acceptance_rate)) if progress else \
         (lambda state, info, ad: None)
     warmup = blackjax.window_adaptation(
         blackjax.nuts, logdensity, is_mass_matrix_diagonal=not sampler.dense_mass,
-        initial_inverse_mass_matrix=imm, target_acceptance_rate=sampler.target_accept,
-        adaptation_info_fn=info_fn, max_num_doublings=sampler.max_doublings)
-    (state, params), ticks = warmup.run(wkey, z_start, num_steps=sampler.warmup)
+        target_acceptance_rate=sampler.target_accept, adaptation_info_fn=info_fn,
+        max_num_doublings=sampler.max_doublings)
+    (state, params), ticks = warmup.run(wkey, w_start, num_steps=sampler.warmup)
     kernel = blackjax.nuts(logdensity, **params)
 
     def one(st, k):
         st, info = kernel.step(k, st)
-        out = (st.position, st.logdensity, info.is_divergent, info.num_integration_steps,
-               info.acceptance_rate)
+        out = (z0 + L @ st.position, st.logdensity, info.is_divergent,
+               info.num_integration_steps, info.acceptance_rate)
         return st, out + ((_tick(info.acceptance_rate),) if progress else ())
 
     _, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
@@ -169,10 +164,10 @@ def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, imm, key):
 
 
 @eqx.filter_jit
-def _run(target, prior, sampler, progress, units, z0, imm, keys):
+def _run(target, prior, sampler, progress, units, z0, L, keys):
     chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
     over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
-    trace, step, done = jax.vmap(over_chains)(units, z0, imm, keys)
+    trace, step, done = jax.vmap(over_chains)(units, z0, L, keys)
     # the box map and the noise transforms, in the program: draws come back in SI units
     data, lo, hi, theta_full = units
     free = np.asarray(target.free, int)
@@ -335,8 +330,10 @@ def sample(
     rows = tuple(int(s[0].shape[0]) for s in shapes)
     target = _Target(residual=residual, free=free, rows=rows, noise=noise)
     z0, imm = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
-    if not sampler.dense_mass:
-        imm = np.diagonal(imm, axis1=1, axis2=2).copy()
+    # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
+    # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
+    # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
+    L = np.linalg.cholesky(imm)
     if key is None:
         key = jax.random.key(int(seed))
     keys = jax.vmap(lambda i: jax.random.split(jax.random.fold_in(key, i), sampler.chains))(
@@ -354,7 +351,7 @@ def sample(
         _BAR[0] = bar
     try:
         out = _run(target, prior_data, sampler, show, units_data, jnp.asarray(z0),
-                   jnp.asarray(imm), keys)
+                   jnp.asarray(L), keys)
         out = jax.block_until_ready(out)
     finally:
         _BAR[0] = None

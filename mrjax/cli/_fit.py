@@ -30,6 +30,7 @@ from ._common import (
     transient,
     use_agg,
 )
+from ._posterior import add_posterior_options, posterior_settings, run_posterior
 
 #: Where `mrjax fit` keeps the finished chunks of a run, inside its output directory.
 JOURNAL = ".mrjax-journal"
@@ -67,11 +68,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
     bounds = parse_bounds(args.bounds, model)
+    post = posterior_settings(args)  # checked before any work
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)
     varying = _varying_command(batch)
     if args.generalize == "joint" and (varying or _voltage_command(batch)):
+        if post is not None:
+            raise InputError("--posterior is available for per-test fits; the posterior of "
+                             "laws of a time-varying command is not")
         return _run_identify(args, model, bounds, batch, out)
     if varying and args.generalize:
         raise InputError(f"--generalize {args.generalize} needs --generalize joint: "
@@ -105,8 +110,13 @@ def run(args: argparse.Namespace) -> int:
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
         gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
                         degrees=args.degrees)
-    files = {"fit.json": result.to_json(generalized=gm).encode(),
-             "fit.csv": result.to_csv().encode()}
+    tp, post_files = None, {}
+    if post is not None:
+        tp, post_files = run_posterior(post, result, batch, bounds=bounds,
+                                       transient=args.transient, seed=args.seed,
+                                       plots=not args.no_plots)
+    files = {"fit.json": result.to_json(generalized=gm, posterior=tp).encode(),
+             "fit.csv": result.to_csv().encode(), **post_files}
     if not args.no_plots:
         say("drawing figures...")
         files.update(figures(result, batch, gm))
@@ -117,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
     if gm is not None:
         print()
         print(gm.summary())
+    if tp is not None:
+        print()
+        print(tp.table(max_rows=args.max_rows))
     return 0
 
 
@@ -279,6 +292,7 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
     p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
                    help="print at most N rows of the result table (default all)")
+    add_posterior_options(p)
     add_scale_options(p, journal=True)
     add_data_options(p)
     p.set_defaults(func=run)

@@ -23,6 +23,10 @@ from ._figures import plot_params_vs_current as plot_params_vs_current
 from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
 from ._figures import plot_rms_vs_current as plot_rms_vs_current
 from ._figures import save_png_bytes as save_png_bytes
+from ._posterior import plot_posterior_intervals as plot_posterior_intervals
+from ._posterior import plot_posterior_pair as plot_posterior_pair
+from ._posterior import plot_predictive_band as plot_predictive_band
+from ._posterior import posterior_figures as posterior_figures
 from ._tables import format_table as format_table
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records
