@@ -26,6 +26,7 @@ from ._pertest import posterior as posterior
 from ._priors import LogNormal as LogNormal
 from ._priors import Normal as Normal
 from ._priors import Uniform as Uniform
+from ._priors import check_priors as check_priors
 from ._priors import from_box as from_box
 from ._priors import log_jacobian as log_jacobian
 from ._priors import log_prior as log_prior

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")
     bounds = parse_bounds(args.bounds, model)
-    post = posterior_settings(args)  # checked before any work
+    post = posterior_settings(args, model.param_names)  # checked before any work
     spec = data_spec(args)
     batch = load_batch(args.files, spec)
     say_estimates(batch)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from typing import Any
 
 from .._errors import InputError
@@ -36,11 +37,11 @@ def add_posterior_options(p: argparse.ArgumentParser) -> None:
                    "uniform:LO:HI, SI units (repeatable; default flat on the bounds)")
 
 
-def posterior_settings(args: argparse.Namespace) -> dict[str, Any] | None:
+def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any] | None:
     """The checked keyword arguments of `mrjax.posterior` from the command line, or None
-    without `--posterior`. Raises :class:`mrjax.InputError` (before any fitting) for an
-    impossible option or for one given without `--posterior`."""
-    from ..bayes import DATA_CHOICES, NOISE_MODELS, Sampler, parse_prior
+    without `--posterior`; `names` the model's parameters. Raises :class:`mrjax.InputError`
+    (before any fitting) for an impossible option or for one given without `--posterior`."""
+    from ..bayes import DATA_CHOICES, NOISE_MODELS, Sampler, check_priors
 
     given = [f"--{k.replace('_', '-')}" for k in (*DEFAULTS, "posterior_data", "prior")
              if getattr(args, k, None) is not None]
@@ -62,8 +63,8 @@ def posterior_settings(args: argparse.Namespace) -> dict[str, Any] | None:
         name, sep, spec = item.partition("=")
         if not sep or not name.strip():
             raise InputError(f"--prior expects NAME=KIND:A:B, got {item!r}")
-        prior[name.strip()] = parse_prior(spec, name.strip())
-    kw.update(likelihood_data=args.posterior_data, prior=prior or None)
+        prior[name.strip()] = spec
+    kw.update(likelihood_data=args.posterior_data, prior=check_priors(prior, names) or None)
     return kw
 
 
