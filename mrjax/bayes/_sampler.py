@@ -12,7 +12,8 @@ coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded 
 `to_box` with its log-Jacobian), adapts step size and mass matrix with
 `blackjax.window_adaptation` (Stan's windows) from chains started around the polished optimum
 with an inverse mass matrix from its Jacobian covariance, and draws with `blackjax.nuts` in a
-`lax.scan`: vmapped over chains and units, one compiled program, like the swarm.
+`lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
+after another on a CPU, vmapped on an accelerator: see `Sampler.vectorize`).
 
 The sampler's position is `z = [u (Kf), log sigma (R), v]`: `u` the free unknowns in the
 bounded map, `log sigma` [log N] the records' noise levels (flat prior in log sigma, Jeffreys'
@@ -58,6 +59,13 @@ class Sampler(eqx.Module):
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
+    - `vectorize`: `True` vmaps every chain of every unit into one batch; `False` runs them
+        one after another with `lax.map`, in the same compiled program. `None` (default):
+        vmap on an accelerator, map on a CPU. A vmapped NUTS step runs until the longest
+        trajectory of its batch ends, so on a CPU (where one chain's residuals already fill
+        the vector units) the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x
+        200 steps on the swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its
+        compilation 12.6 s against 5.9 s (`benchmarks/posterior.md`).
     """
 
     draws: int = eqx.field(static=True, default=1000)
@@ -66,6 +74,7 @@ class Sampler(eqx.Module):
     target_accept: float = eqx.field(static=True, default=0.8)
     max_doublings: int = eqx.field(static=True, default=10)
     dense_mass: bool = eqx.field(static=True, default=True)
+    vectorize: bool | None = eqx.field(static=True, default=None)
 
     def check(self) -> Sampler:
         """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
@@ -117,57 +126,78 @@ def _logdensity(target: _Target, prior, unit, z):
 _BAR: list[Any] = [None]
 
 
-def _tick_host(x):
+def _tick_host(n):
     bar = _BAR[0]
     if bar is not None:
-        bar.update(1)
-    return np.zeros(np.shape(x), np.int32)
+        bar.update(int(np.ravel(n)[0]))
+    return np.zeros(np.shape(n), np.int32)
 
 
-def _tick(x):
-    """One step of the progress bar per call of the batched program (not per chain): a
-    `pure_callback` that vmap calls once with the whole batch; its (zero) result is returned
-    so that it is not removed as dead code."""
-    return jax.pure_callback(_tick_host, jax.ShapeDtypeStruct(jnp.shape(x), jnp.int32), x,
+def _tick(n):
+    """Advance the progress bar by `n` steps: a `pure_callback` that vmap calls once with the
+    whole batch (all entries equal); its (zero) result is returned to the caller, which must
+    use it, so that it is not removed as dead code."""
+    return jax.pure_callback(_tick_host, jax.ShapeDtypeStruct(jnp.shape(n), jnp.int32), n,
                              vmap_method="broadcast_all")
+
+
+def vectorized(sampler: Sampler) -> bool:
+    """Whether chains and units are vmapped (see `Sampler.vectorize`)."""
+    if sampler.vectorize is not None:
+        return bool(sampler.vectorize)
+    return jax.default_backend() != "cpu"
 
 
 # ------------------------------------------------------------------------------ the program
 def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
-    """Warmup then sampling of one chain of one unit (vmapped at the call site), in the
-    whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`)."""
+    """Warmup then sampling of one chain of one unit (batched at the call site), in the
+    whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`). The progress bar
+    advances every step when vmapped (one call for the whole batch), else once per phase
+    (one call per chain: a host call per step would cost more than a step)."""
     import blackjax  # imported here: `import mrjax` does not need it
 
     logdensity = lambda w: _logdensity(target, prior, unit, z0 + L @ w)
     jkey, wkey, skey = jax.random.split(key, 3)
     w_try = JITTER * jax.random.normal(jkey, z0.shape, z0.dtype)
     w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
-
-    info_fn = (lambda state, info, ad: _tick(info.acceptance_rate)) if progress else \
-        (lambda state, info, ad: None)
+    per_step = progress and vectorized(sampler)
+    one_tick = jnp.ones((), jnp.int32)
+    info_fn = (lambda state, info, ad: _tick(one_tick + 0 * info.num_integration_steps)) \
+        if per_step else (lambda state, info, ad: None)
     warmup = blackjax.window_adaptation(
         blackjax.nuts, logdensity, is_mass_matrix_diagonal=not sampler.dense_mass,
         target_acceptance_rate=sampler.target_accept, adaptation_info_fn=info_fn,
         max_num_doublings=sampler.max_doublings)
     (state, params), ticks = warmup.run(wkey, w_start, num_steps=sampler.warmup)
+    done = jnp.sum(ticks) if per_step else jnp.zeros((), jnp.int32)
+    if progress and not per_step:  # after the warmup: it depends on its final state
+        done = done + _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
     kernel = blackjax.nuts(logdensity, **params)
 
     def one(st, k):
         st, info = kernel.step(k, st)
         out = (z0 + L @ st.position, st.logdensity, info.is_divergent,
                info.num_integration_steps, info.acceptance_rate)
-        return st, out + ((_tick(info.acceptance_rate),) if progress else ())
+        tick = _tick(one_tick + 0 * info.num_integration_steps) if per_step else \
+            jnp.zeros((), jnp.int32)
+        return st, out + (tick,)
 
-    _, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
-    done = jnp.sum(ticks) + jnp.sum(trace[5]) if progress else jnp.zeros((), jnp.int32)
+    last, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
+    done = done + jnp.sum(trace[5])
+    if progress and not per_step:
+        done = done + _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
     return trace[:5], params["step_size"], done
 
 
 @eqx.filter_jit
 def _run(target, prior, sampler, progress, units, z0, L, keys):
     chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
-    over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
-    trace, step, done = jax.vmap(over_chains)(units, z0, L, keys)
+    if vectorized(sampler):  # one batch of units x chains
+        batched = jax.vmap(jax.vmap(chain, in_axes=(None, None, None, 0)))
+        trace, step, done = batched(units, z0, L, keys)
+    else:  # one chain after another, in the same compiled program
+        over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
+        trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
     # the box map and the noise transforms, in the program: draws come back in SI units
     data, lo, hi, theta_full = units
     free = np.asarray(target.free, int)
@@ -346,8 +376,10 @@ def sample(
     if show:
         from tqdm.auto import tqdm  # imported here: only a shown bar needs it
 
-        bar = tqdm(total=sampler.warmup + sampler.draws, desc="posterior (warmup, then draws)",
-                   unit="step", leave=False, file=sys.stderr)
+        total = (sampler.warmup + sampler.draws) * (1 if vectorized(sampler) else
+                                                     U * sampler.chains)
+        bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
+                   leave=False, file=sys.stderr)
         _BAR[0] = bar
     try:
         out = _run(target, prior_data, sampler, show, units_data, jnp.asarray(z0),
