@@ -270,7 +270,8 @@ def posterior(
         computed, starts the mass matrix).
     - `data`: the conditions it was fitted on (same labels), as `mrjax.fit` takes them.
     - `draws`, `chains`, `warmup`: kept draws per chain, chains per condition, adaptation
-        steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three).
+        steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three, and the
+        default forward-mode gradient of the dynamic models).
     - `noise`: `"iid"` (independent Gaussian residuals) or `"ar1"` (AR(1), rho fitted per
         condition: use it on real records, whose model error is correlated; see
         `mrjax.bayes.block_loglik`). One noise level per condition in both.
@@ -298,15 +299,17 @@ def posterior(
     :class:`mrjax.InputError` for impossible options (draws <= 0, unknown noise model or data
     choice, bad priors) and for data that are not the fit's conditions.
     """
-    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup)).check()
-    check_noise(noise)
-    if likelihood_data is not None and likelihood_data not in DATA_CHOICES:
-        raise InputError(f"likelihood_data must be one of {', '.join(DATA_CHOICES)}, got "
-                         f"{likelihood_data!r}")
     if not isinstance(result, FitResult):
         raise InputError(f"posterior needs a mrjax.fit result (FitResult), got "
                          f"{type(result).__name__}")
     model = result.model
+    # a dynamic model's residuals are one sequential integration: forward mode (see Sampler)
+    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup,
+                                  gradient="forward" if model.dynamic else "reverse")).check()
+    check_noise(noise)
+    if likelihood_data is not None and likelihood_data not in DATA_CHOICES:
+        raise InputError(f"likelihood_data must be one of {', '.join(DATA_CHOICES)}, got "
+                         f"{likelihood_data!r}")
     batch = as_batch(data)
     if tuple(batch.labels) != tuple(result.labels):
         raise InputError(f"data are not the fit's conditions: {batch.n_conditions} records "

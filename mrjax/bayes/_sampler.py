@@ -66,6 +66,9 @@ class Sampler(eqx.Module):
         the vector units) the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x
         200 steps on the swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its
         compilation 12.6 s against 5.9 s (`benchmarks/posterior.md`).
+    - `gradient`: how the residuals are differentiated: `"reverse"` (default) or `"forward"`
+        (their Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential
+        integration, e.g. the dynamic models).
     """
 
     draws: int = eqx.field(static=True, default=1000)
@@ -75,6 +78,7 @@ class Sampler(eqx.Module):
     max_doublings: int = eqx.field(static=True, default=10)
     dense_mass: bool = eqx.field(static=True, default=True)
     vectorize: bool | None = eqx.field(static=True, default=None)
+    gradient: str = eqx.field(static=True, default="reverse")
 
     def check(self) -> Sampler:
         """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
@@ -85,6 +89,8 @@ class Sampler(eqx.Module):
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not 0.0 < float(self.target_accept) < 1.0:
             raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
+        if self.gradient not in ("reverse", "forward"):
+            raise InputError(f"gradient must be 'reverse' or 'forward', got {self.gradient!r}")
         return self
 
 
@@ -95,10 +101,29 @@ class _Target(eqx.Module):
     free: tuple[int, ...] = eqx.field(static=True)
     rows: tuple[int, ...] = eqx.field(static=True)  # records per block
     noise: str = eqx.field(static=True)
+    forward: bool = eqx.field(static=True, default=False)
 
-    @property
-    def dim(self) -> int:
-        return len(self.free) + sum(self.rows) + (self.noise == "ar1")
+
+def _forward_values(residual: Callable, theta, data):
+    """The residual blocks' values, differentiated in forward mode: their Jacobian in theta
+    (one pass with K tangents) is what reverse mode transposes. Through a sequential
+    integration this is cheaper than a reverse pass, which stores and replays every step
+    (modified Bouc-Wen on a 1,000-sample view: 13 ms against 24 ms per gradient)."""
+
+    def values(th):
+        return tuple(r for r, _ in residual(th, data))
+
+    @jax.custom_jvp
+    def f(th):
+        return values(th)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        (th,), (dth,) = primals, tangents
+        J = jax.jacfwd(values)(th)
+        return values(th), tuple(j @ dth for j in J)
+
+    return f(theta)
 
 
 def _logdensity(target: _Target, prior, unit, z):
@@ -112,6 +137,9 @@ def _logdensity(target: _Target, prior, unit, z):
     th_free = to_box(u, lo, hi)
     theta = theta_full.at[free].set(th_free)
     blocks = target.residual(theta, data)
+    if target.forward:  # the masks above; their values (dead code there) from forward mode
+        blocks = tuple(zip(_forward_values(target.residual, theta, data),
+                           (m for _, m in blocks)))
     lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(u)
     off = 0
     for (r, m), n in zip(blocks, target.rows):
@@ -358,7 +386,8 @@ def sample(
     shapes = jax.eval_shape(residual, jnp.asarray(theta0[0]),
                             jax.tree.map(lambda x: x[0], data))
     rows = tuple(int(s[0].shape[0]) for s in shapes)
-    target = _Target(residual=residual, free=free, rows=rows, noise=noise)
+    target = _Target(residual=residual, free=free, rows=rows, noise=noise,
+                     forward=sampler.gradient == "forward")
     z0, imm = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
     # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
     # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
