@@ -336,6 +336,16 @@ def test_cli_posterior_writes_files(tanh_post, tmp_path):
     check_pngs(out, ["posterior_pair.png", "posterior_intervals.png", "posterior_band.png"])
     assert (out / "posterior.nc").read_bytes()[:4] == b"\x89HDF"
     assert (out / "posterior.csv").read_text().startswith("variable,condition,mean")
+    # the predictive band of that fit on the same records, from its posterior.nc
+    pred = tmp_path / "pred"
+    code, stdout, err = run(["predict", "--fit", out, "--band", "95", data, "--out", pred])
+    assert code == 0, err
+    band = json.loads((pred / "predict.json").read_text())["band"]
+    assert band["level"] == 0.95 and len(band["conditions"]) == 2
+    assert all(0.85 < c["coverage"] <= 1.0 for c in band["conditions"]), band
+    check_pngs(pred, ["predict_band.png"])
+    code, _, err = run(["predict", "--fit", out, "--band", "0", data, "--out", pred / "x"])
+    assert code == 2 and "--band must be a percentage" in one_error_line(err)
 
 
 @pytest.mark.parametrize("argv, match", [

@@ -23,6 +23,8 @@ from ._pertest import PerTestResidual as PerTestResidual
 from ._pertest import PredictiveBand as PredictiveBand
 from ._pertest import TestPosterior as TestPosterior
 from ._pertest import posterior as posterior
+from ._pertest import predictive_band as predictive_band
+from ._pertest import read_draws as read_draws
 from ._priors import LogNormal as LogNormal
 from ._priors import Normal as Normal
 from ._priors import Uniform as Uniform

@@ -87,3 +87,57 @@ def run_posterior(settings: dict[str, Any], result: Any, batch: Any, *, bounds: 
         band = tp.predict_band(batch)
         files.update(rp.posterior_figures(tp, band))
     return tp, files
+
+
+def run_band(args: argparse.Namespace) -> int:
+    """`mrjax predict --fit DIR --band PCT`: the posterior predictive band of a per-test fit
+    (its `posterior.nc`) on records of the same tests, with the coverage of the measured
+    force; writes predict.json, predict.csv and predict_band.png."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from .. import __version__
+    from .._io import atomic_output, check_writable, json_bytes
+    from ..bayes import predictive_band, read_draws
+    from ..models import get
+    from ..report import format_table
+    from ._common import data_spec, load_batch, read_fit_json, say_estimates
+
+    if not 0.0 < args.band < 100.0:
+        raise InputError(f"--band must be a percentage in (0, 100), got {args.band:g}")
+    out = check_writable(args.out)
+    doc = read_fit_json(args.fit)
+    fit_dir = Path(args.fit).expanduser()
+    fit_dir = fit_dir if fit_dir.is_dir() else fit_dir.parent
+    nc = fit_dir / "posterior.nc"
+    if not nc.is_file():
+        raise InputError(f"{args.fit}: no posterior.nc beside the fit.json; run `mrjax fit "
+                         f"DATA... --model NAME --posterior` first")
+    model = get(str(doc.get("model")))
+    labels, theta, sigma = read_draws(nc, model.param_names)
+    batch = load_batch(args.files, data_spec(args))
+    say_estimates(batch)
+    say(f"predicting {batch.n_conditions} record(s) with the posterior of {len(labels)} "
+        f"test(s), {args.band:g} % band...")
+    band = predictive_band(model, theta, sigma, labels, batch, level=args.band / 100.0)
+    report = {"fit": str(args.fit), "model": model.name, "mrjax_version": __version__,
+              "band": band.to_dict(), "draws_used": int(theta.shape[1])}
+    rows = [[lab, 100 * c, 100 * fc, 100 * e] for lab, c, fc, e in
+            zip(band.labels, band.coverage, band.force_coverage, band.nrmse)]
+    csv = "label,coverage,force_coverage,nrmse\n" + "".join(
+        f"{lab},{c:.6g},{fc:.6g},{e:.6g}\n" for lab, c, fc, e in
+        zip(band.labels, band.coverage, band.force_coverage, band.nrmse))
+    files = {"predict.json": json_bytes(report), "predict.csv": csv.encode()}
+    if not args.no_plots:
+        use_agg()
+        from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+        files["predict_band.png"] = rp.save_png_bytes(rp.plot_predictive_band(band))
+    atomic_output(out, files)
+    print(format_table(rows, ["record", f"in {args.band:g}% band %", "in force band %",
+                              "NRMSE%"], floatfmt=["", ".1f", ".1f", ".2f"]))
+    print(f"{model.name} posterior: the {args.band:g} % band covers "
+          f"{100 * float(np.mean(band.coverage)):.1f} % of the measured force (mean over "
+          f"{len(rows)} record(s))")
+    return 0

@@ -25,6 +25,7 @@ from ._common import (
     say_estimates,
     use_agg,
 )
+from ._posterior import run_band
 
 _GEN_HINT = "run `mrjax fit DATA... --model NAME --generalize two-step` first"
 
@@ -77,6 +78,8 @@ def _read_model(path: str) -> tuple[GeneralizedModel, str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run `mrjax predict` with parsed arguments; returns the exit code."""
+    if args.band is not None:  # the posterior predictive band of a per-test fit
+        return run_band(args)
     out = check_writable(args.out)
     gm, model = _read_model(args.fit)
     spec = data_spec(args)
@@ -124,5 +127,9 @@ def add_parser(sub, common: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default ./{DEFAULT_OUT})")
     p.add_argument("--no-plots", action="store_true", help="write no PNG figures")
+    p.add_argument("--band", type=float, metavar="PCT",
+                   help="the posterior predictive force band of a per-test fit written with "
+                   "`mrjax fit --posterior` (its posterior.nc) on records of the same tests, "
+                   "e.g. 95, with its coverage of the measured force")
     add_data_options(p)
     p.set_defaults(func=run)
