@@ -45,6 +45,8 @@ OUT_JSON = HERE / "posterior.json"
 OUT_MD = HERE / "posterior.md"
 #: Samples per excitation cycle of the calibration records.
 SAMPLES_PER_CYCLE = 160
+#: Excitation cycles of each calibration record.
+CYCLES = 2.0
 #: Where the fits of the UTFSM tests are kept between cases (not in the repository: data-derived).
 CACHE = Path(os.environ.get("MRJAX_BENCH_CACHE", "/tmp/mrjax-bench-posterior"))
 
@@ -180,15 +182,16 @@ def simulate_set(model: str, n: int, noise: str, seed: int):
     rng = np.random.default_rng(seed)
     m = mrjax.models.get(model)
     conds, truth = [], []
-    base = {"dahl": m.params(c=1500.0, k=1500.0, alpha=500.0, rho=2000.0, f0=-30.0)}
+    base = m.params(c=1500.0, k=1500.0, alpha=500.0, rho=2000.0, f0=-30.0) \
+        if model == "dahl" else None
     for r in range(n):
         if model == "kwok":
             th = paper_parameters(rng.uniform(0.0, 1.5))
         else:
-            th = base[model] * rng.uniform(0.7, 1.3, m.n_params)
+            th = base * rng.uniform(0.7, 1.3, m.n_params)
         f, amp = rng.choice([1.0, 2.0]), rng.uniform(0.004, 0.012)
         clean = simulate(model, th, frequency=f, amplitude=amp, sample_rate=SAMPLES_PER_CYCLE * f,
-                         cycles=1.25, label=f"r{r:02d}")
+                         cycles=CYCLES, label=f"r{r:02d}")
         sd = 0.02 * float(np.max(np.abs(clean.force)))
         e = rng.standard_normal(clean.force.size)
         if noise == "ar1":
