@@ -15,9 +15,14 @@ with an inverse mass matrix from its Jacobian covariance, and draws with `blackj
 `lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
 after another on a CPU, vmapped on an accelerator: see `Sampler.vectorize`).
 
-The sampler's position is `z = [u (Kf), log sigma (R), v]`: `u` the free unknowns in the
-bounded map, `log sigma` [log N] the records' noise levels (flat prior in log sigma, Jeffreys'
-for a scale), `v` with $\\rho = \\tanh v$ (`"ar1"` only; uniform prior on $\\rho \\in (-1, 1)$).
+The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the free unknowns in the bounded
+map; `log s` [log N] the records' noise levels, with `"ar1"` those of the innovations,
+$s = \\sigma \\sqrt{1 - \\rho^2}$ ($\\sigma$ the marginal level that is reported): on a real
+record $\\rho \\to 1$ and the data fix $s$ tightly but $\\sigma$ only through each record's
+first sample, so $(\\log\\sigma, v)$ is a long narrow ridge that NUTS crosses in hundreds of
+steps, while $(\\log s, v)$ is not (the change is a shear: flat priors stay flat, Jeffreys'
+for a scale); `v` with $\\rho = \\tanh v$ (`"ar1"` only; uniform prior on
+$\\rho \\in (-1, 1)$).
 """
 
 from __future__ import annotations
@@ -137,6 +142,8 @@ def _logdensity(target: _Target, prior, unit, z):
     free = np.asarray(target.free, int)
     u, log_sigma = z[:Kf], z[Kf:Kf + R]
     v = z[Kf + R] if target.noise == "ar1" else None
+    if v is not None:  # the position holds the innovations' level: the marginal one from it
+        log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
     th_free = to_box(u, lo, hi)
     theta = theta_full.at[free].set(th_free)
     blocks = target.residual(theta, data)
@@ -237,9 +244,12 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
     th = to_box(z[..., :Kf], lo[:, None, None, :], hi[:, None, None, :])
     theta = jnp.broadcast_to(theta_full[:, None, None, :], z.shape[:3] + theta_full.shape[-1:])
     theta = theta.at[..., free].set(th)
-    sigma = jnp.exp(z[..., Kf:Kf + R])
-    rho = jnp.tanh(z[..., Kf + R]) if target.noise == "ar1" else None
-    return theta, sigma, rho, trace[1:], step, done
+    log_sigma = z[..., Kf:Kf + R]
+    rho = None
+    if target.noise == "ar1":
+        v = z[..., Kf + R]
+        log_sigma, rho = log_sigma - 0.5 * log1m_tanh2(v)[..., None], jnp.tanh(v)
+    return theta, jnp.exp(log_sigma), rho, trace[1:], step, done
 
 
 # ------------------------------------------------------------------------------ the start
@@ -258,9 +268,10 @@ def _start(residual, theta0, lo, hi, data, cov0, free, noise):
         infl = min((1.0 + rho) / (1.0 - rho), 1e4) if noise == "ar1" and rho > 0 else 1.0
         u0 = from_box(theta0[i, idx], lo[i], hi[i])
         cu = _u_cov(None if cov0 is None else cov0[i][np.ix_(idx, idx)], u0, lo[i], hi[i])
-        var = [np.minimum(infl / (2.0 * n), MAX_U_VAR)]  # log sigma: 1 / (2 n) each
+        var = [np.minimum(1.0 / (2.0 * n), MAX_U_VAR)]  # log sigma: 1 / (2 n) each
         zi = [u0, np.log(sig)]
-        if noise == "ar1":
+        if noise == "ar1":  # the innovations' level sigma sqrt(1 - rho^2), and atanh(rho)
+            zi[1] = zi[1] + 0.5 * np.log1p(-rho * rho)
             zi.append(np.array([np.arctanh(rho)]))
             var.append(np.array([min(1.0 / (n.sum() * (1.0 - rho * rho)), MAX_U_VAR)]))
         d = np.concatenate(var)
