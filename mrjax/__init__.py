@@ -43,6 +43,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "fitting": ("mrjax.fitting", None),
     "generalize": ("mrjax.generalize", None),
     "models": ("mrjax.models", None),
+    "bayes": ("mrjax.bayes", None),
     "objective": ("mrjax.objective", None),
     "parallel": ("mrjax.parallel", None),
     "pso": ("mrjax.pso", None),
@@ -51,6 +52,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "reproduce": ("mrjax.reproduce", None),
     "CompareResult": ("mrjax.comparison", "CompareResult"),
     "compare": ("mrjax.comparison", "compare"),
+    "posterior": ("mrjax.bayes", "posterior"),
     "FitResult": ("mrjax.fitting", "FitResult"),
     "fit": ("mrjax.fitting", "fit"),
     "Polish": ("mrjax.engine", "Polish"),
@@ -58,6 +60,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
 }
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and readers
+    from . import bayes as bayes
     from . import comparison as comparison
     from . import data as data
     from . import engine as engine
@@ -70,6 +73,7 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers and readers
     from . import refine as refine
     from . import report as report
     from . import reproduce as reproduce
+    from .bayes import posterior as posterior
     from .comparison import CompareResult as CompareResult
     from .comparison import compare as compare
     from .engine import Polish as Polish

@@ -26,6 +26,7 @@ from ._common import (
     use_agg,
 )
 from ._parse import say
+from ._posterior import posterior_settings, run_posterior
 
 #: Where `mrjax fit` keeps the finished chunks of a run, inside its output directory.
 JOURNAL = ".mrjax-journal"
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     if args.laws is not None and not args.generalize:
         raise InputError("--laws sets the form of the laws of --generalize: give both")
     bounds = parse_bounds(args.bounds, model)
+    post = posterior_settings(args, model.param_names)  # checked before any work
     spec = data_spec(args)
     data = load_tests(args.files, spec, args.memory)
     streamed = isinstance(data, Source)
@@ -78,7 +80,15 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         raise InputError(f"--generalize needs every test in memory, and the {survey.n} tests "
                          f"take more than --memory holds with the fit: give --memory "
                          f"{need / 1e9:.2g}GB or more")
+    if streamed and post is not None:
+        need = RUNTIME_BYTES + data.batch_bytes() / HOLD_SHARE
+        raise InputError(f"--posterior needs every test in memory, and the {survey.n} tests "
+                         f"take more than --memory holds with the fit: give --memory "
+                         f"{need / 1e9:.2g}GB or more")
     if args.generalize == "joint" and (varying or survey.voltage):
+        if post is not None:
+            raise InputError("--posterior is available for per-test fits and laws over the "
+                             "current; the posterior of laws of a time-varying command is not")
         return _run_identify(args, model, bounds, data, out)
     if varying and args.generalize:
         raise InputError(f"--generalize {args.generalize} needs --generalize joint: "
@@ -116,8 +126,13 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         mask = fit_mask(batch, args.transient) if args.transient is not None else None
         gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
                         degrees=args.degrees, laws=args.laws)
-    files = {"fit.json": result.to_json(generalized=gm).encode(),
-             "fit.csv": result.to_csv().encode()}
+    tp, post_files = None, {}
+    if post is not None:
+        tp, post_files = run_posterior(post, result, batch, bounds=bounds,
+                                       transient=args.transient, seed=args.seed,
+                                       plots=not args.no_plots)
+    files = {"fit.json": result.to_json(generalized=gm, posterior=tp).encode(),
+             "fit.csv": result.to_csv().encode(), **post_files}
     if not args.no_plots:
         say("drawing figures...")
         files.update(figures(result, batch, gm, rows))
@@ -131,6 +146,9 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         for w in result.warnings(gm):
             if w["kind"] == "too_few_currents":
                 print(f"warning: {w['message']}")
+    if tp is not None:
+        print()
+        print(tp.table(max_rows=args.max_rows))
     return 0
 
 

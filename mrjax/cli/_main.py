@@ -19,6 +19,7 @@ from ._parse import (
     Parser,
     add_data_options,
     add_output_options,
+    add_posterior_options,
     add_scale_options,
     nonneg_int,
     one_line,
@@ -104,6 +105,7 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
                    help="print at most N rows of the result table (default all)")
     add_scale_options(p, journal=True)
+    add_posterior_options(p)
     add_data_options(p)
     p.set_defaults(run=("_fit", "run"))
 
@@ -121,6 +123,10 @@ def _predict_parser(sub, common) -> None:
     p.add_argument("--model", metavar="FILE.py:NAME",
                    help="where the fitted model is, when it is not a model of this installation "
                    "and fit.json's record of its file or module no longer finds it")
+    p.add_argument("--band", type=float, metavar="PCT",
+                   help="the posterior predictive force band of a per-test fit written with "
+                   "`mrjax fit --posterior` (its posterior.nc) on records of the same tests, "
+                   "e.g. 95, with its coverage of the measured force")
     add_output_options(p, "predict")
     add_data_options(p)
     p.set_defaults(run=("_predict", "run"))

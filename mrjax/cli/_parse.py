@@ -301,3 +301,32 @@ def add_data_options(parser: argparse.ArgumentParser) -> None:
                    help="window of the velocity estimated from displacement (when no velocity "
                    "column is read), e.g. 0.02 or '20 ms' (default: chosen from the bandwidth "
                    "of each record)")
+
+
+#: The posterior options of `mrjax fit --posterior` and their defaults (None in argparse: given
+#: or not is checked).
+POSTERIOR_DEFAULTS = {"draws": 1000, "chains": 4, "warmup": 1000, "noise": "iid"}
+
+
+def add_posterior_options(p: argparse.ArgumentParser) -> None:
+    """Register `--posterior` and its options on the `mrjax fit` parser."""
+    g = p.add_argument_group("posterior (Bayesian identification by NUTS)")
+    g.add_argument("--posterior", action="store_true",
+                   help="after the fit, sample the posterior of every test's parameters "
+                   "(NUTS, blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
+                   "entry in fit.json and figures")
+    g.add_argument("--draws", type=int, metavar="N",
+                   help=f"draws kept per chain (default {POSTERIOR_DEFAULTS['draws']})")
+    g.add_argument("--chains", type=int, metavar="K",
+                   help=f"chains per test (default {POSTERIOR_DEFAULTS['chains']})")
+    g.add_argument("--warmup", type=int, metavar="N",
+                   help=f"adaptation steps per chain (default {POSTERIOR_DEFAULTS['warmup']})")
+    g.add_argument("--noise", metavar="iid|ar1",
+                   help="residual model: iid (default) or ar1 (correlated model error: "
+                   "honest intervals on real records)")
+    g.add_argument("--posterior-data", metavar="record|view",
+                   help="what the likelihood scores: the whole record, or the swarm's "
+                   "subsampled view (default: view for the dynamic models, record otherwise)")
+    g.add_argument("--prior", action="append", metavar="NAME=KIND:A:B",
+                   help="prior of one parameter: normal:MEAN:SD, lognormal:MEDIAN:SIGMA or "
+                   "uniform:LO:HI, SI units (repeatable; default flat on the bounds)")

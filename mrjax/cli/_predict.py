@@ -22,6 +22,7 @@ from ._common import (
     use_agg,
 )
 from ._parse import say
+from ._posterior import run_band
 
 _GEN_HINT = "run `mrjax fit DATA... --model NAME --generalize two-step` first"
 
@@ -77,6 +78,8 @@ def _read_model(path: str, model: str | None = None) -> tuple[GeneralizedModel, 
 def run(args: argparse.Namespace, out: OutputDir) -> int:
     """Run `mrjax predict` with parsed arguments into the claimed directory `out`; returns the
     exit code."""
+    if args.band is not None:  # the posterior predictive band of a per-test fit
+        return run_band(args, out)
     gm, model = _read_model(args.fit, args.model)
     spec = data_spec(args)
     batch = load_batch(args.files, spec)

@@ -247,11 +247,12 @@ class FitResult:
                 f"swarm_mode={self.swarm_mode!r}, "
                 f"C={self.n_conditions}, median RMS={np.nanmedian(self.rms):.3g} N)")
 
-    def to_dict(self, *, generalized: Any = None) -> dict[str, Any]:
+    def to_dict(self, *, generalized: Any = None, posterior: Any = None) -> dict[str, Any]:
         """The public `fit.json` schema (see the README); NaN and inf become `None`.
 
         **Arguments:** `generalized`: an optional `mrjax.generalize.GeneralizedModel` of these
-        fits, written as the `"generalized"` block.
+        fits, written as the `"generalized"` block; `posterior`: an optional
+        `mrjax.bayes.TestPosterior` of these fits, written as the `"posterior"` block.
         """
         names = self.param_names
         conds = []
@@ -289,6 +290,8 @@ class FitResult:
         }
         if generalized is not None:
             doc["generalized"] = generalized.to_dict()
+        if posterior is not None:
+            doc["posterior"] = posterior.to_dict()
         doc["warnings"] = self.warnings(generalized)
         return json_safe(doc)
 
@@ -298,9 +301,10 @@ class FitResult:
             return []
         return [n for n, e in zip(ESTIMATED_FIELDS, np.asarray(self.estimated)[i]) if e]
 
-    def to_json(self, *, generalized: Any = None) -> str:
+    def to_json(self, *, generalized: Any = None, posterior: Any = None) -> str:
         """`fit.json` text, the one writer of that file (see :meth:`to_dict`)."""
-        return json.dumps(self.to_dict(generalized=generalized), indent=1, allow_nan=False)
+        return json.dumps(self.to_dict(generalized=generalized, posterior=posterior), indent=1,
+                          allow_nan=False)
 
     def to_csv(self) -> str:
         """`fit.csv` text: one row per condition."""

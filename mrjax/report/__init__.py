@@ -26,5 +26,9 @@ from ._loops import TANH_STEP_NOTE as TANH_STEP_NOTE
 from ._loops import condition_title as condition_title
 from ._loops import plot_data_loops as plot_data_loops
 from ._loops import plot_loops_grid as plot_loops_grid
+from ._posterior import plot_posterior_intervals as plot_posterior_intervals
+from ._posterior import plot_posterior_pair as plot_posterior_pair
+from ._posterior import plot_predictive_band as plot_predictive_band
+from ._posterior import posterior_figures as posterior_figures
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records

@@ -1,0 +1,424 @@
+"""The posterior (issue 25): calibration, speed, and the record against the swarm's view.
+
+    nice -n 10 python -m benchmarks.posterior calibration [--records 50]
+    nice -n 10 python -m benchmarks.posterior speed [--mbw-all]
+    nice -n 10 python -m benchmarks.posterior views
+    python -m benchmarks.posterior render          # posterior.md from posterior.json
+
+1. **Calibration** (known answer, in one process): `--records` short sine records (1-2 Hz,
+   4-12 mm, 1.25 cycles at 160 samples per cycle) simulated from known parameters (tanh: the
+   paper's laws at a random current in 0-1.5 A; Dahl, a dynamic model: the test set's
+   parameters scaled by +-30 % at random), with Gaussian force noise of 2 % of max|F|,
+   independent or AR(1) with rho = 0.9 (the same marginal). Each set is fitted (`mrjax.fit`)
+   and sampled (`mrjax.posterior`, 4 chains x 1000 draws after 1000 warmup steps); the table
+   gives the share of (record, parameter) pairs whose 95 % interval covers the truth, worst
+   R-hat, smallest ESS, divergences: iid noise with `noise="iid"`, AR(1) noise with
+   `noise="ar1"` (calibrated) and with `noise="iid"` (the intervals collapse).
+2. **Speed** (each case a cold process: imports, data, compilation included; the fit is read
+   from a cache and timed apart): tanh on the 30 UTFSM tests, 4 chains x 1000 draws (iid and
+   AR(1)); modified Bouc-Wen on one UTFSM test (and, with `--mbw-all`, the 30); leapfrog
+   steps per draw; and the cost of one gradient of the log-likelihood against one force
+   evaluation (warm medians).
+3. **Record or view**: the same posteriors on the full records and on the swarm's view
+   (cost, and the ratio of the 95 % interval widths).
+
+Writes `benchmarks/posterior.json` (sections merged) and `benchmarks/posterior.md`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+OUT_JSON = HERE / "posterior.json"
+OUT_MD = HERE / "posterior.md"
+#: Samples per excitation cycle of the calibration records.
+SAMPLES_PER_CYCLE = 160
+#: Excitation cycles of each calibration record.
+CYCLES = 2.0
+#: Where the fits of the UTFSM tests are kept between cases (not in the repository: data-derived).
+CACHE = Path(os.environ.get("MRJAX_BENCH_CACHE", "/tmp/mrjax-bench-posterior"))
+
+
+def log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def utfsm() -> Path:
+    d = os.environ.get("MRJAX_DATA") or str(HERE.parent.parent / "shared" / "data" / "utfsm")
+    if not Path(d).is_dir():
+        d = "/work/shared/data/utfsm"
+    return Path(d)
+
+
+# ------------------------------------------------------------------------------ one cold case
+def cached_fit(model: str):
+    """The UTFSM fit of `model` (all 30 tests, seed 0), from the cache or fitted now."""
+    import mrjax
+
+    CACHE.mkdir(parents=True, exist_ok=True)
+    path = CACHE / f"fit_{model}.json"
+    batch = mrjax.fitting.as_batch(utfsm())
+    if path.exists():
+        res = mrjax.FitResult.from_state(json.loads(path.read_text()), mrjax.models.get(model))
+        return res, batch, 0.0
+    t0 = time.perf_counter()
+    res = mrjax.fit(model, batch, seed=0)
+    path.write_text(json.dumps(res.to_state()))
+    return res, batch, time.perf_counter() - t0
+
+
+def run_case(a: argparse.Namespace) -> dict[str, Any]:
+    """One posterior in this (fresh) process: timings, diagnostics, interval widths."""
+    t_start = time.perf_counter()
+    import mrjax
+
+    t_import = time.perf_counter() - t_start
+    res, batch, t_fit = cached_fit(a.model)
+    if a.tests != "all":
+        idx = [list(batch.labels).index(s) for s in a.tests.split(",")]
+        res, batch = res.subset(idx), batch.subset(idx)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tp = mrjax.posterior(res, batch, draws=a.draws, chains=a.chains, warmup=a.warmup,
+                             noise=a.noise, likelihood_data=a.data, seed=0)
+    wall = time.perf_counter() - t0
+    post = tp.posterior
+    iv = {n: post.interval(n).tolist() for n in post.names}
+    return {"model": a.model, "tests": a.tests, "n_tests": len(post.labels), "noise": a.noise,
+            "data": tp.data, "draws": a.draws, "chains": a.chains, "warmup": a.warmup,
+            "import_s": t_import, "fit_s": t_fit, "posterior_s": wall,
+            "process_s": time.perf_counter() - t_start, "diagnostics": post.diagnostics(),
+            "scored_samples": [int(n) for n in tp.n_scored], "labels": list(post.labels),
+            "intervals": iv, "warnings": [str(w.message) for w in caught]}
+
+
+def cold(**kw) -> dict[str, Any]:
+    """:func:`run_case` in a fresh process (`nice`d like its parent)."""
+    argv = [sys.executable, "-m", "benchmarks.posterior", "case"]
+    for k, v in kw.items():
+        argv += [f"--{k}", str(v)]
+    log("case " + " ".join(argv[4:]))
+    env = dict(os.environ, MRJAX_CACHE_DIR="off", JAX_PLATFORMS="cpu")
+    p = subprocess.run(argv, cwd=HERE.parent, env=env, capture_output=True, text=True)
+    if p.returncode:
+        raise RuntimeError(p.stderr[-3000:])
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    log(f"  {out['posterior_s']:.1f} s, {out['diagnostics']['leapfrog_per_draw']:.1f} "
+        f"leapfrog/draw, R-hat {out['diagnostics']['r_hat_max']:.3f}")
+    return out
+
+
+# ------------------------------------------------------------------------------ gradient cost
+def gradient_cost() -> list[dict[str, Any]]:
+    """Warm median time of one force evaluation and of one value-and-gradient of the Gaussian
+    log-likelihood, on one UTFSM test (record and view)."""
+    import jax
+    import jax.numpy as jnp
+
+    import mrjax
+    from mrjax.bayes import PerTestResidual, block_loglik
+
+    rows = []
+    for model_name, data in (("kwok", "record"), ("kwok", "view"),
+                             ("modified_bouc_wen", "record"), ("modified_bouc_wen", "view")):
+        res, batch, _ = cached_fit(model_name)
+        i = list(batch.labels).index("10mm1Hz1A")
+        res, batch = res.subset([i]), batch.subset([i])
+        mask = batch.mask
+        if data == "view":
+            v = mrjax.fitting.swarm_view(batch)
+            batch, mask = v.batch, v.mask
+        theta = jnp.asarray(res.theta[0])
+        model = mrjax.models.resolve_model(res.model, res.theta, batch.xdot, batch.dt, batch.mask)
+        unit = (batch.x[0], batch.xdot[0], batch.dt[0], batch.force[0], jnp.asarray(mask)[0])
+        resid = PerTestResidual(model)
+        force = lambda th: jnp.sum(model.force(th, unit[0], unit[1], unit[2]))
+        r_fn = lambda th: resid(th, unit)[0][0]
+        ll = lambda r: block_loglik(r, unit[4][None], jnp.zeros(1))
+        vg = jax.value_and_grad(lambda th: ll(r_fn(th)))
+        rev = lambda th: (lambda v, g: v + jnp.sum(g))(*vg(th))
+
+        def fwd(th):  # the sampler's forward mode: the Jacobian, then its transpose
+            r, J = r_fn(th), jax.jacfwd(r_fn)(th)
+            v, g = jax.value_and_grad(ll)(r)
+            return v + jnp.sum(jnp.tensordot(g, J, axes=2))
+
+        n = 20 if model.dynamic and data == "record" else 200
+
+        def med(fn):
+            """Seconds per evaluation, inside one compiled loop (no dispatch cost)."""
+            many = jax.jit(lambda th: jax.lax.fori_loop(
+                0, n, lambda i, acc: acc + fn(th * (1.0 + 1e-12 * i)), 0.0))
+            jax.block_until_ready(many(theta))
+            ts = []
+            for _ in range(5):
+                t0 = time.perf_counter()
+                jax.block_until_ready(many(theta))
+                ts.append(time.perf_counter() - t0)
+            return float(np.median(ts)) / n
+
+        tf, tg, tfw = med(force), med(rev), med(fwd)
+        sub, scheme = model.integration(theta, batch.xdot, batch.dt) if model.dynamic else \
+            (1, "-")
+        rows.append({"model": model_name, "data": data, "samples": int(np.sum(mask)),
+                     "integration": f"{scheme} x{sub}" if model.dynamic else "-",
+                     "force_ms": 1e3 * tf, "grad_ms": 1e3 * tg, "grad_fwd_ms": 1e3 * tfw,
+                     "ratio": tg / tf, "ratio_fwd": tfw / tf})
+        log(f"cost {model_name} {data}: force {1e3 * tf:.3f} ms, gradient {1e3 * tg:.3f} ms "
+            f"(reverse), {1e3 * tfw:.3f} ms (forward)")
+    return rows
+
+
+# ------------------------------------------------------------------------------ calibration
+def simulate_set(model: str, n: int, noise: str, seed: int):
+    """`(batch, truth (n, P))`: n short sine records of `model`, 2 % force noise, iid or
+    AR(1) rho = 0.9."""
+    import mrjax
+    from mrjax.data import make_batch, paper_parameters, simulate
+
+    rng = np.random.default_rng(seed)
+    m = mrjax.models.get(model)
+    conds, truth = [], []
+    base = m.params(c=1500.0, k=1500.0, alpha=500.0, rho=2000.0, f0=-30.0) \
+        if model == "dahl" else None
+    for r in range(n):
+        if model == "kwok":
+            th = paper_parameters(rng.uniform(0.0, 1.5))
+        else:
+            th = base * rng.uniform(0.7, 1.3, m.n_params)
+        f, amp = rng.choice([1.0, 2.0]), rng.uniform(0.004, 0.012)
+        clean = simulate(model, th, frequency=f, amplitude=amp, sample_rate=SAMPLES_PER_CYCLE * f,
+                         cycles=CYCLES, label=f"r{r:02d}")
+        sd = 0.02 * float(np.max(np.abs(clean.force)))
+        e = rng.standard_normal(clean.force.size)
+        if noise == "ar1":
+            for k in range(1, e.size):
+                e[k] = 0.9 * e[k - 1] + np.sqrt(1 - 0.81) * e[k]
+        conds.append(dataclasses.replace(clean, force=clean.force + sd * e))
+        truth.append(th)
+    return make_batch(conds), np.array(truth)
+
+
+def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, Any]]:
+    """Coverage of the 95 % intervals on simulated records (see the module docstring); each
+    set's row is merged into posterior.json as soon as it is measured."""
+    import mrjax
+    from mrjax.bayes import Sampler
+
+    doc = json.loads(OUT_JSON.read_text()) if OUT_JSON.exists() else {}
+    rows = [r for r in doc.get("calibration", []) if r["model"] not in models]
+    for model in models:
+        # the dynamic model's records are short sequential integrations: one vmapped batch
+        # of all chains amortises the integrator's per-step cost (see Sampler.vectorize)
+        sampler = Sampler(draws=draws, chains=4, warmup=draws,
+                          gradient="forward" if model == "dahl" else "reverse",
+                          vectorize=model == "dahl")
+        for data_noise, fit_noise in (("iid", "iid"), ("ar1", "ar1"), ("ar1", "iid")):
+            batch, truth = simulate_set(model, records, data_noise, seed=1)
+            t0 = time.perf_counter()
+            res = mrjax.fit(model, batch, seed=0)
+            t_fit = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                tp = mrjax.posterior(res, batch, sampler=sampler, noise=fit_noise, seed=0)
+            t_post = time.perf_counter() - t0
+            post = tp.posterior
+            cov = np.array([[lo <= t <= hi for (lo, hi), t in
+                             zip(post.interval(n), truth[:, j])]
+                            for j, n in enumerate(post.names)]).T  # (records, P)
+            jac = np.asarray(res.ci95, float)
+            jcov = (jac[..., 0] <= truth) & (truth <= jac[..., 1])
+            d = post.diagnostics()
+            rows.append({"model": model, "data_noise": data_noise, "likelihood": fit_noise,
+                         "records": records, "samples_per_record": int(np.median(
+                             np.asarray(batch.n_samples))), "coverage": float(cov.mean()),
+                         "coverage_per_param": dict(zip(post.names, cov.mean(axis=0).tolist())),
+                         "jacobian_coverage": float(np.mean(jcov)),
+                         "r_hat_max": d["r_hat_max"], "ess_bulk_min": d["ess_bulk_min"],
+                         "ess_tail_min": d["ess_tail_min"], "divergences": d["divergences"],
+                         "leapfrog_per_draw": d["leapfrog_per_draw"], "fit_s": t_fit,
+                         "posterior_s": t_post})
+            log(f"calibration {model} {data_noise}/{fit_noise}: coverage {cov.mean():.3f} "
+                f"(Jacobian {np.mean(jcov):.3f}), R-hat {d['r_hat_max']:.4f}, "
+                f"{d['divergences']} div, {t_post:.0f} s")
+            merge("calibration", rows)
+    return rows
+
+
+# ------------------------------------------------------------------------------ sections
+def merge(section: str, value: Any) -> None:
+    doc = json.loads(OUT_JSON.read_text()) if OUT_JSON.exists() else {}
+    doc[section] = value
+    doc.setdefault("machine", {})[section] = machine()
+    OUT_JSON.write_text(json.dumps(doc, indent=1))
+    OUT_MD.write_text(render(doc))
+
+
+def machine() -> dict[str, Any]:
+    import platform
+
+    try:
+        cpu = next(ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo")
+                   if ln.startswith("model name"))
+    except (OSError, StopIteration):
+        cpu = platform.processor()
+    return {"cpu": cpu, "cores": os.cpu_count(), "loadavg": list(os.getloadavg()),
+            "date": time.strftime("%Y-%m-%d %H:%M")}
+
+
+def _md(head: list[str], rows: list[list[Any]]) -> str:
+    def cell(v):
+        if isinstance(v, float):
+            return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+        return str(v)
+
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    out += ["| " + " | ".join(cell(v) for v in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _width_ratio(a: dict, b: dict) -> float:
+    """Median over parameters and tests of the 95 % interval width of `a` over that of `b`."""
+    r = []
+    for n in a["intervals"]:
+        wa = np.ptp(np.asarray(a["intervals"][n]), axis=1)
+        wb = np.ptp(np.asarray(b["intervals"][n]), axis=1)
+        ok = (wb > 0) & np.isfinite(wa) & np.isfinite(wb)
+        r += list(wa[ok] / wb[ok])
+    return float(np.median(r)) if r else float("nan")
+
+
+def render(doc: dict[str, Any]) -> str:
+    """posterior.md from posterior.json."""
+    out = ["# Posterior (issue 25): calibration, speed, record or view", ""]
+    m = doc.get("machine", {})
+    if m:
+        any_m = next(iter(m.values()))
+        out += [f"Machine: {any_m['cpu']}, {any_m['cores']} cores, shared with other jobs "
+                f"(load average per section: " + ", ".join(
+                    f"{k} {v['loadavg'][0]:.1f} ({v['date']})" for k, v in m.items()) + ").",
+                ""]
+    if "calibration" in doc:
+        rows = doc["calibration"]
+        out += ["## Calibration (known answer)", "",
+                f"{rows[0]['records']} simulated records per set, about "
+                f"{rows[0]['samples_per_record']} samples each, noise 2 % of max|F|; "
+                "4 chains x 1000 draws. Coverage: share of (record, parameter) pairs whose 95 % "
+                "interval holds the truth (nominal 0.95; the Jacobian intervals of the fit "
+                "beside it).", "",
+                _md(["model", "noise in data", "likelihood", "coverage", "Jacobian coverage",
+                     "R-hat max", "ESS bulk min", "ESS tail min", "divergences",
+                     "leapfrog/draw", "posterior s"],
+                    [[r["model"], r["data_noise"], r["likelihood"], r["coverage"],
+                      r["jacobian_coverage"], f"{r['r_hat_max']:.4f}", r["ess_bulk_min"],
+                      r["ess_tail_min"], r["divergences"], r["leapfrog_per_draw"],
+                      r["posterior_s"]] for r in rows]), ""]
+    if "speed" in doc:
+        rows = doc["speed"]
+        out += ["## Speed (cold processes)", "",
+                "posterior s: `mrjax.posterior` alone, compilation included; process s: the "
+                "whole process (imports, data, cached fit read, posterior). A case run with "
+                "fewer than 1000 draws (and as many warmup steps) is extrapolated linearly to "
+                "4 chains x (1000 + 1000) steps (compilation included: an upper bound).", "",
+                _md(["model", "tests", "noise", "data", "chains x (warmup + draws)",
+                     "posterior s", "process s", "at 4 x (1000 + 1000) s", "leapfrog/draw",
+                     "R-hat max", "ESS bulk min", "divergences"],
+                    [[r["model"], r["n_tests"], r["noise"], r["data"],
+                      f"{r['chains']} x ({r['warmup']} + {r['draws']})", r["posterior_s"],
+                      r["process_s"], r["posterior_s"] * 2000 * 4 / (
+                          r["chains"] * (r["warmup"] + r["draws"])),
+                      r["diagnostics"]["leapfrog_per_draw"],
+                      f"{r['diagnostics']['r_hat_max']:.4f}",
+                      r["diagnostics"]["ess_bulk_min"], r["diagnostics"]["divergences"]]
+                     for r in rows]), ""]
+    if "cost" in doc:
+        out += ["## One gradient against one force evaluation (test 10mm1Hz1A, warm)", "",
+                "Inside one compiled loop (no dispatch cost). The sampler uses the reverse "
+                "gradient for the static models and the forward one (the residuals' Jacobian "
+                "by `jax.jacfwd`, then transposed) for the dynamic models.", "",
+                _md(["model", "data", "scored samples", "integration", "force ms",
+                     "gradient ms (reverse)", "ratio", "gradient ms (forward)", "ratio"],
+                    [[r["model"], r["data"], r["samples"], r["integration"], r["force_ms"],
+                      r["grad_ms"], r["ratio"], r.get("grad_fwd_ms", float("nan")),
+                      r.get("ratio_fwd", float("nan"))] for r in doc["cost"]]), ""]
+    if "views" in doc:
+        v = doc["views"]
+        rows = []
+        for pair in v:
+            rec, view = pair["record"], pair["view"]
+            rows.append([rec["model"], rec["n_tests"], rec["noise"],
+                         f"{rec['chains']} x {rec['draws']}", rec["posterior_s"],
+                         view["posterior_s"], _width_ratio(view, rec),
+                         rec["diagnostics"]["leapfrog_per_draw"],
+                         view["diagnostics"]["leapfrog_per_draw"]])
+        out += ["## Record or view", "",
+                "Width ratio: median over parameters and tests of the 95 % interval width on "
+                "the view over that on the record.", "",
+                _md(["model", "tests", "noise", "chains x draws", "record s", "view s",
+                     "width view / record", "leapfrog/draw record", "leapfrog/draw view"],
+                    rows), ""]
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("what", choices=("calibration", "speed", "views", "cost", "render", "case"))
+    ap.add_argument("--records", type=int, default=50)
+    ap.add_argument("--draws", type=int, default=1000)
+    ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--warmup", type=int, default=1000)
+    ap.add_argument("--model", default="kwok")
+    ap.add_argument("--tests", default="all")
+    ap.add_argument("--noise", default="iid")
+    ap.add_argument("--data", default=None)
+    ap.add_argument("--mbw-all", action="store_true")
+    ap.add_argument("--models", default="kwok,dahl", help="calibration: models")
+    ap.add_argument("--mbw-draws", type=int, default=100,
+                    help="speed: draws (and warmup steps) of the modified Bouc-Wen case")
+    a = ap.parse_args(argv)
+    if a.what == "case":
+        if a.data == "None":
+            a.data = None
+        print(json.dumps(run_case(a)))
+        return 0
+    if a.what == "render":
+        OUT_MD.write_text(render(json.loads(OUT_JSON.read_text())))
+        return 0
+    if a.what == "calibration":
+        calibration(a.records, a.draws, a.models.split(","))
+    elif a.what == "cost":
+        merge("cost", gradient_cost())
+    elif a.what == "speed":
+        rows = [cold(model="kwok", noise=n) for n in ("iid", "ar1")]
+        # modified Bouc-Wen: a short run, extrapolated in the table (see the module docstring)
+        rows.append(cold(model="modified_bouc_wen", tests="10mm1Hz1A", noise="ar1",
+                         draws=a.mbw_draws, warmup=a.mbw_draws))
+        if a.mbw_all:
+            rows.append(cold(model="modified_bouc_wen", noise="ar1", draws=a.mbw_draws,
+                             warmup=a.mbw_draws))
+        merge("speed", rows)
+    elif a.what == "views":
+        pairs = []
+        for noise in ("iid", "ar1"):
+            kw = dict(model="kwok", tests="all", noise=noise, draws=a.draws, warmup=a.draws)
+            pairs.append({"record": cold(data="record", **kw), "view": cold(data="view", **kw)})
+            merge("views", pairs)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,41 @@
+"""Bayesian identification: the posterior of any problem kind's unknowns by NUTS (blackjax),
+with its diagnostics and files through arviz.
+
+```python
+import mrjax
+res = mrjax.fit("kwok", batch)
+post = mrjax.posterior(res, batch, draws=1000, chains=4, noise="ar1")
+print(post.table())          # mean, sd, 2.5/50/97.5 %, R-hat, ESS per parameter and test
+post.idata                   # arviz.InferenceData (dims chain, draw, condition)
+band = post.predict_band(batch)   # posterior predictive force band and its coverage
+```
+
+The core, :func:`sample`, takes a residual function of one unit's unknowns in a box (one
+condition of a per-test fit; the whole data set of a joint-law fit) and returns a
+:class:`Posterior`; :func:`posterior` is the per-test kind on a `mrjax.fit` result. The package
+is named `bayes` so that the function `mrjax.posterior` does not hide a module.
+"""
+
+from ._noise import NOISE_MODELS as NOISE_MODELS
+from ._noise import block_loglik as block_loglik
+from ._pertest import DATA_CHOICES as DATA_CHOICES
+from ._pertest import PerTestResidual as PerTestResidual
+from ._pertest import PredictiveBand as PredictiveBand
+from ._pertest import TestPosterior as TestPosterior
+from ._pertest import posterior as posterior
+from ._pertest import predictive_band as predictive_band
+from ._pertest import read_draws as read_draws
+from ._priors import LogNormal as LogNormal
+from ._priors import Normal as Normal
+from ._priors import Uniform as Uniform
+from ._priors import check_priors as check_priors
+from ._priors import from_box as from_box
+from ._priors import log_jacobian as log_jacobian
+from ._priors import log_prior as log_prior
+from ._priors import parse_prior as parse_prior
+from ._priors import to_box as to_box
+from ._result import ESS_MIN as ESS_MIN
+from ._result import RHAT_MAX as RHAT_MAX
+from ._result import Posterior as Posterior
+from ._sampler import Sampler as Sampler
+from ._sampler import sample as sample

@@ -1,0 +1,228 @@
+"""Priors of the posterior's unknowns and the bounded map the sampler runs in.
+
+Every unknown $\\theta_j$ lives in a box $[l_j, h_j]$ (a fit's bounds). NUTS needs an
+unbounded space, so the sampler moves $u_j \\in \\mathbb{R}$ with
+
+$$ \\theta_j = l_j + (h_j - l_j)\\,s(u_j), \\qquad s(u) = 1 / (1 + e^{-u}), $$
+
+and adds the log-Jacobian $\\log s(u_j) + \\log s(-u_j)$ (+ the constant
+$\\log(h_j - l_j)$) to the log-density: a flat prior on the box in $\\theta$ is a standard
+logistic density in $u$. (The polish's periodic MINUIT map $\\sin u$ would make every mode
+repeat; the logistic map is one to one.) A user's prior multiplies that flat density on the
+box: a :class:`Normal` or :class:`LogNormal` is truncated to it, a :class:`Uniform` narrows it.
+
+Priors are per parameter, by name; they are turned once (:func:`prior_arrays`) into three
+arrays (kind, a, b) that the compiled log-density reads (:func:`log_prior`), so new prior
+values do not recompile.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._errors import InputError
+
+#: Codes of the prior kinds in the arrays of :func:`prior_arrays`.
+FLAT, NORMAL, LOGNORMAL = 0, 1, 2
+#: A start on (or within this fraction of the box width of) a bound is moved this far inside:
+#: the logistic map sends a bound to infinity.
+START_NUDGE = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class Normal:
+    """Normal prior $N(\\mathrm{mean}, \\mathrm{sd}^2)$ on a parameter, truncated to its box.
+
+    **Fields:** `mean`, `sd` (> 0), in the parameter's SI unit."""
+
+    mean: float
+    sd: float
+
+    def describe(self) -> str:
+        """`normal(mean, sd)`."""
+        return f"normal({self.mean:g}, {self.sd:g})"
+
+
+@dataclasses.dataclass(frozen=True)
+class LogNormal:
+    """Log-normal prior on a positive parameter: $\\log\\theta \\sim N(\\log m, s^2)$,
+    truncated to its box (which must lie in $\\theta \\ge 0$).
+
+    **Fields:** `median` $m$ (> 0) in the parameter's SI unit; `sigma` $s$ (> 0) the standard
+    deviation of $\\log\\theta$ (dimensionless; 0.5 is a factor of about 1.65 either way)."""
+
+    median: float
+    sigma: float
+
+    def describe(self) -> str:
+        """`lognormal(median, sigma)`."""
+        return f"lognormal({self.median:g}, {self.sigma:g})"
+
+
+@dataclasses.dataclass(frozen=True)
+class Uniform:
+    """Uniform prior on `[lower, upper]` (SI units): the sampler's box becomes its
+    intersection with the fit's bounds."""
+
+    lower: float
+    upper: float
+
+    def describe(self) -> str:
+        """`uniform(lower, upper)`."""
+        return f"uniform({self.lower:g}, {self.upper:g})"
+
+
+Prior = Normal | LogNormal | Uniform
+_KINDS = {"normal": Normal, "lognormal": LogNormal, "uniform": Uniform}
+
+
+def parse_prior(spec: Any, name: str = "parameter") -> Prior:
+    """One prior from a :class:`Normal` / :class:`LogNormal` / :class:`Uniform`, a tuple
+    `("normal", mean, sd)`, or text `"normal:MEAN:SD"` (also `lognormal:MEDIAN:SIGMA`,
+    `uniform:LO:HI`), checked.
+
+    Raises :class:`mrjax.InputError` naming `name` for an unknown kind, a wrong count of
+    values or an impossible value (sd <= 0, median <= 0, lower >= upper, non-finite)."""
+    if isinstance(spec, str):
+        kind, *vals = [s.strip() for s in spec.split(":")]
+        spec = (kind, *vals)
+    if isinstance(spec, (tuple, list)):
+        if not spec or not isinstance(spec[0], str) or spec[0].lower() not in _KINDS:
+            kinds = ", ".join(_KINDS)
+            raise InputError(f"prior of {name!r}: expected one of {kinds} with two values "
+                             f"(e.g. normal:MEAN:SD), got {spec!r}")
+        if len(spec) != 3:
+            raise InputError(f"prior of {name!r}: {spec[0]} takes two values, got "
+                             f"{len(spec) - 1}")
+        try:
+            a, b = float(spec[1]), float(spec[2])
+        except (TypeError, ValueError):
+            raise InputError(f"prior of {name!r}: values must be numbers, got {spec[1:]!r}") \
+                from None
+        spec = _KINDS[spec[0].lower()](a, b)
+    if not isinstance(spec, (Normal, LogNormal, Uniform)):
+        raise InputError(f"prior of {name!r} must be Normal, LogNormal, Uniform or text like "
+                         f"'normal:MEAN:SD', got {type(spec).__name__}")
+    vals = dataclasses.astuple(spec)
+    if not all(math.isfinite(float(v)) for v in vals):
+        raise InputError(f"prior of {name!r}: non-finite value in {spec.describe()}")
+    if isinstance(spec, Normal) and spec.sd <= 0:
+        raise InputError(f"prior of {name!r}: sd must be positive, got {spec.sd:g}")
+    if isinstance(spec, LogNormal) and (spec.median <= 0 or spec.sigma <= 0):
+        raise InputError(f"prior of {name!r}: median and sigma must be positive, got "
+                         f"{spec.describe()}")
+    if isinstance(spec, Uniform) and not spec.lower < spec.upper:
+        raise InputError(f"prior of {name!r}: uniform needs lower < upper, got "
+                         f"{spec.describe()}")
+    return spec
+
+
+def check_priors(prior: Mapping[str, Any] | None, names: Sequence[str]) -> dict[str, Prior]:
+    """The user's priors by parameter name, checked (:func:`parse_prior`); an unknown name is an
+    :class:`mrjax.InputError` with the closest names."""
+    if prior is None:
+        return {}
+    if not isinstance(prior, Mapping):
+        raise InputError(f"prior must be a mapping from parameter name to prior, got "
+                         f"{type(prior).__name__}")
+    out = {}
+    for n, spec in prior.items():
+        if n not in names:
+            near = difflib.get_close_matches(str(n), list(names), n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else f"; parameters: {list(names)}"
+            raise InputError(f"prior for unknown parameter {n!r}{hint}")
+        out[n] = parse_prior(spec, n)
+    return out
+
+
+def prior_arrays(
+    priors: Mapping[str, Prior], names: Sequence[str], lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The priors as arrays for the compiled log-density, and the box they leave.
+
+    **Arguments:** `priors` by name (checked); `names` (K,); `lower`, `upper` (U, K) the boxes
+    of the U units, SI units.
+
+    **Returns:** `(kind (K,) int, a (K,), b (K,), lower (U, K), upper (U, K))`: `kind` is
+    `FLAT`, `NORMAL` (a = mean, b = sd) or `LOGNORMAL` (a = log median, b = sigma); a uniform
+    prior is flat on the box narrowed to it.
+
+    Raises :class:`mrjax.InputError` where a uniform prior misses a box or a log-normal prior
+    meets a box reaching below zero."""
+    K = len(names)
+    kind, a, b = np.full(K, FLAT), np.zeros(K), np.ones(K)
+    lo, hi = np.array(lower, float), np.array(upper, float)
+    for j, n in enumerate(names):
+        p = priors.get(n)
+        if isinstance(p, Normal):
+            kind[j], a[j], b[j] = NORMAL, p.mean, p.sd
+        elif isinstance(p, LogNormal):
+            if np.any(lo[:, j] < 0):
+                raise InputError(f"prior of {n!r}: a log-normal prior needs a box in "
+                                 f"{n} >= 0, the lower bound is {lo[:, j].min():g}")
+            kind[j], a[j], b[j] = LOGNORMAL, math.log(p.median), p.sigma
+        elif isinstance(p, Uniform):
+            lo[:, j], hi[:, j] = np.maximum(lo[:, j], p.lower), np.minimum(hi[:, j], p.upper)
+            if np.any(lo[:, j] > hi[:, j]):
+                raise InputError(f"prior of {n!r}: {p.describe()} does not meet the bounds "
+                                 f"[{lower[:, j].min():g}, {upper[:, j].max():g}]")
+    return kind, a, b, lo, hi
+
+
+def log_prior(
+    theta: Float[ArrayLike, " K"], kind: ArrayLike, a: ArrayLike, b: ArrayLike
+) -> Float[Array, ""]:
+    """Log prior density of `theta` (K,) up to a constant (jittable): the sum over parameters
+    of the normal / log-normal log-densities, 0 for flat ones; `-inf` for a log-normal
+    parameter at or below zero (never NaN)."""
+    theta = jnp.asarray(theta)
+    z_n = (theta - a) / b
+    pos = theta > 0
+    lt = jnp.log(jnp.where(pos, theta, 1.0))
+    z_l = (lt - a) / b
+    lp = jnp.where(kind == NORMAL, -0.5 * z_n * z_n,
+                   jnp.where(kind == LOGNORMAL,
+                             jnp.where(pos, -lt - 0.5 * z_l * z_l, -jnp.inf), 0.0))
+    return jnp.sum(lp)
+
+
+def to_box(u: Float[ArrayLike, " K"], lower: ArrayLike, upper: ArrayLike) -> Float[Array, " K"]:
+    """$\\theta = l + (h - l)\\,s(u)$: the unbounded variables `u` mapped into the box."""
+    return lower + (upper - lower) * jax.nn.sigmoid(u)
+
+
+def log_jacobian(u: Float[ArrayLike, " K"]) -> Float[Array, ""]:
+    """$\\sum_j \\log s(u_j) + \\log s(-u_j)$: the log-Jacobian of :func:`to_box` without its
+    constant $\\log(h - l)$; finite for every finite `u` (a fixed parameter, $l = h$, keeps
+    this standard logistic density, so its `u` stays proper)."""
+    u = jnp.asarray(u)
+    return jnp.sum(jax.nn.log_sigmoid(u) + jax.nn.log_sigmoid(-u))
+
+
+def from_box(theta: ArrayLike, lower: ArrayLike, upper: ArrayLike) -> np.ndarray:
+    """Host inverse of :func:`to_box`: `u` of `theta`, moved inside by `START_NUDGE` of the box
+    width where it sits on (or beyond) a bound; 0 where the box is a point."""
+    th, lo, hi = (np.asarray(v, float) for v in (theta, lower, upper))
+    w = hi - lo
+    live = w > 0
+    s = np.where(live, (th - lo) / np.where(live, w, 1.0), 0.5)
+    s = np.clip(s, START_NUDGE, 1.0 - START_NUDGE)
+    return np.log(s) - np.log1p(-s)
+
+
+def at_bounds(theta: ArrayLike, lower: ArrayLike, upper: ArrayLike,
+              rtol: float = 1e-6) -> np.ndarray:
+    """Host: whether each entry of `theta` lies within `rtol` of its box width of a bound
+    (point boxes, fixed parameters, excluded)."""
+    th, lo, hi = (np.asarray(v, float) for v in (theta, lower, upper))
+    w = hi - lo
+    return (w > 0) & ((th - lo <= rtol * w) | (hi - th <= rtol * w))

@@ -1,0 +1,447 @@
+"""The one sampler of mrjax: NUTS (blackjax) on any problem kind's residual function.
+
+A problem kind supplies a residual function of one *unit*'s unknowns (one condition of a
+per-test fit; the whole data set of a joint-law fit),
+
+    residual(theta (K,), unit_data) -> ((r (R1, T1), mask (R1, T1)), (r, mask), ...)
+
+a tuple of blocks of records (rows) by samples, masked samples unscored, and the unknowns'
+box. :func:`sample` builds one log-density per unit (the Gaussian likelihood of
+`mrjax.bayes.block_loglik` with one noise level per record and, for `noise="ar1"`, one AR(1)
+coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded map
+`to_box` with its log-Jacobian), adapts step size and mass matrix with
+`blackjax.window_adaptation` (Stan's windows) from chains started around the polished optimum
+with an inverse mass matrix from its Jacobian covariance, and draws with `blackjax.nuts` in a
+`lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
+after another on a CPU, vmapped on an accelerator: see `Sampler.vectorize`).
+
+The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the free unknowns in the bounded
+map; `log s` [log N] the records' noise levels, with `"ar1"` those of the innovations,
+$s = \\sigma \\sqrt{1 - \\rho^2}$ ($\\sigma$ the marginal level that is reported): on a real
+record $\\rho \\to 1$ and the data fix $s$ tightly but $\\sigma$ only through each record's
+first sample, so $(\\log\\sigma, v)$ is a long narrow ridge that NUTS crosses in hundreds of
+steps, while $(\\log s, v)$ is not (the change is a shear: flat priors stay flat, Jeffreys'
+for a scale); `v` with $\\rho = \\tanh v$ (`"ar1"` only; uniform prior on
+$\\rho \\in (-1, 1)$).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import ArrayLike
+
+from .._errors import InputError
+from ._noise import block_loglik, check_noise, log1m_tanh2, noise_start
+from ._priors import check_priors, from_box, log_jacobian, log_prior, prior_arrays, to_box
+from ._result import Posterior
+
+#: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
+#: (not identifiable), and the most any unknown's starting variance may be.
+FALLBACK_U_VAR = 0.1**2
+MAX_U_VAR = 1.0
+#: Chains start at the optimum plus this many starting standard deviations of noise (a start
+#: with a non-finite log-density falls back onto the optimum).
+JITTER = 1.0
+
+
+class Sampler(eqx.Module):
+    """Settings of the NUTS sampler (all static: a new value compiles a new program).
+
+    **Fields:**
+
+    - `draws`: draws kept per chain (after warmup).
+    - `chains`: independent chains per unit.
+    - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
+    - `target_accept`: the step-size adaptation's target acceptance rate. 0.9 (Stan: 0.8):
+        the tanh model on short records (2 cycles, 4 mm) has curved posteriors (c, k, alpha,
+        beta correlated to 0.9); on 50 such records 0.8 gave 140 divergent transitions in
+        400,000, 0.9 gave 11, for 10 % more leapfrog steps (`benchmarks/posterior.py`).
+    - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
+    - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
+        trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
+    - `vectorize`: `True` vmaps every chain of every unit into one batch; `False` runs them
+        one after another with `lax.map`, in the same compiled program. `None` (default):
+        vmap on an accelerator, map on a CPU. A vmapped NUTS step runs until the longest
+        trajectory of its batch ends, so on a CPU (where one chain's residuals already fill
+        the vector units) the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x
+        200 steps on the swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its
+        compilation 12.6 s against 5.9 s (`benchmarks/posterior.md`).
+    - `gradient`: how the residuals are differentiated: `"reverse"` (default) or `"forward"`
+        (their Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential
+        integration, e.g. the dynamic models).
+    """
+
+    draws: int = eqx.field(static=True, default=1000)
+    chains: int = eqx.field(static=True, default=4)
+    warmup: int = eqx.field(static=True, default=1000)
+    target_accept: float = eqx.field(static=True, default=0.9)
+    max_doublings: int = eqx.field(static=True, default=10)
+    dense_mass: bool = eqx.field(static=True, default=True)
+    vectorize: bool | None = eqx.field(static=True, default=None)
+    gradient: str = eqx.field(static=True, default="reverse")
+
+    def check(self) -> Sampler:
+        """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
+        (0, 1)."""
+        for name in ("draws", "chains", "warmup", "max_doublings"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise InputError(f"{name} must be a positive integer, got {v!r}")
+        if not 0.0 < float(self.target_accept) < 1.0:
+            raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
+        if self.gradient not in ("reverse", "forward"):
+            raise InputError(f"gradient must be 'reverse' or 'forward', got {self.gradient!r}")
+        return self
+
+
+class _Target(eqx.Module):
+    """What the compiled log-density needs that is the same for every unit (static)."""
+
+    residual: Callable
+    free: tuple[int, ...] = eqx.field(static=True)
+    rows: tuple[int, ...] = eqx.field(static=True)  # records per block
+    noise: str = eqx.field(static=True)
+    forward: bool = eqx.field(static=True, default=False)
+
+
+def _forward_values(residual: Callable, theta, data):
+    """The residual blocks' values, differentiated in forward mode: their Jacobian in theta
+    (one pass with K tangents) is what reverse mode transposes. Through a sequential
+    integration this is cheaper than a reverse pass, which stores and replays every step
+    (modified Bouc-Wen on a 1,000-sample view: 13 ms against 24 ms per gradient)."""
+
+    def values(th):
+        return tuple(r for r, _ in residual(th, data))
+
+    @jax.custom_jvp
+    def f(th):
+        return values(th)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        (th,), (dth,) = primals, tangents
+        J = jax.jacfwd(values)(th)
+        return values(th), tuple(j @ dth for j in J)
+
+    return f(theta)
+
+
+def _logdensity(target: _Target, prior, unit, z):
+    """Log posterior density (up to a constant) of one unit at `z`; NaN or inf -> -inf."""
+    data, lo, hi, theta_full = unit
+    kind, a, b = prior
+    Kf, R = len(target.free), sum(target.rows)
+    free = np.asarray(target.free, int)
+    u, log_sigma = z[:Kf], z[Kf:Kf + R]
+    v = z[Kf + R] if target.noise == "ar1" else None
+    if v is not None:  # the position holds the innovations' level: the marginal one from it
+        log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
+    th_free = to_box(u, lo, hi)
+    theta = theta_full.at[free].set(th_free)
+    blocks = target.residual(theta, data)
+    if target.forward:  # the masks above; their values (dead code there) from forward mode
+        blocks = tuple(zip(_forward_values(target.residual, theta, data),
+                           (m for _, m in blocks)))
+    lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(u)
+    off = 0
+    for (r, m), n in zip(blocks, target.rows):
+        lp = lp + block_loglik(r, m, log_sigma[off:off + n], v)
+        off += n
+    if v is not None:
+        lp = lp + log1m_tanh2(v)  # uniform prior on rho = tanh v in (-1, 1)
+    return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+
+
+# ------------------------------------------------------------------------------ progress
+_BAR: list[Any] = [None]
+
+
+def _tick_host(n):
+    bar = _BAR[0]
+    if bar is not None:
+        bar.update(int(np.ravel(n)[0]))
+    return np.zeros(np.shape(n), np.int32)
+
+
+def _tick(n):
+    """Advance the progress bar by `n` steps: a `pure_callback` that vmap calls once with the
+    whole batch (all entries equal); its (zero) result is returned to the caller, which must
+    use it, so that it is not removed as dead code."""
+    return jax.pure_callback(_tick_host, jax.ShapeDtypeStruct(jnp.shape(n), jnp.int32), n,
+                             vmap_method="broadcast_all")
+
+
+def vectorized(sampler: Sampler) -> bool:
+    """Whether chains and units are vmapped (see `Sampler.vectorize`)."""
+    if sampler.vectorize is not None:
+        return bool(sampler.vectorize)
+    return jax.default_backend() != "cpu"
+
+
+# ------------------------------------------------------------------------------ the program
+def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
+    """Warmup then sampling of one chain of one unit (batched at the call site), in the
+    whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`). The progress bar
+    advances every step when vmapped (one call for the whole batch), else once per phase
+    (one call per chain: a host call per step would cost more than a step)."""
+    import blackjax  # imported here: `import mrjax` does not need it
+
+    logdensity = lambda w: _logdensity(target, prior, unit, z0 + L @ w)
+    jkey, wkey, skey = jax.random.split(key, 3)
+    w_try = JITTER * jax.random.normal(jkey, z0.shape, z0.dtype)
+    w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
+    per_step = progress and vectorized(sampler)
+    one_tick = jnp.ones((), jnp.int32)
+    info_fn = (lambda state, info, ad: _tick(one_tick + 0 * info.num_integration_steps)) \
+        if per_step else (lambda state, info, ad: None)
+    warmup = blackjax.window_adaptation(
+        blackjax.nuts, logdensity, is_mass_matrix_diagonal=not sampler.dense_mass,
+        target_acceptance_rate=sampler.target_accept, adaptation_info_fn=info_fn,
+        max_num_doublings=sampler.max_doublings)
+    (state, params), ticks = warmup.run(wkey, w_start, num_steps=sampler.warmup)
+    done = jnp.sum(ticks) if per_step else jnp.zeros((), jnp.int32)
+    if progress and not per_step:  # after the warmup: it depends on its final state
+        done = done + _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
+    kernel = blackjax.nuts(logdensity, **params)
+
+    def one(st, k):
+        st, info = kernel.step(k, st)
+        out = (z0 + L @ st.position, st.logdensity, info.is_divergent,
+               info.num_integration_steps, info.acceptance_rate)
+        tick = _tick(one_tick + 0 * info.num_integration_steps) if per_step else \
+            jnp.zeros((), jnp.int32)
+        return st, out + (tick,)
+
+    last, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
+    done = done + jnp.sum(trace[5])
+    if progress and not per_step:
+        done = done + _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
+    return trace[:5], params["step_size"], done
+
+
+@eqx.filter_jit
+def _run(target, prior, sampler, progress, units, z0, L, keys):
+    chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
+    if vectorized(sampler):  # one batch of units x chains
+        batched = jax.vmap(jax.vmap(chain, in_axes=(None, None, None, 0)))
+        trace, step, done = batched(units, z0, L, keys)
+    else:  # one chain after another, in the same compiled program
+        over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
+        trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
+    # the box map and the noise transforms, in the program: draws come back in SI units
+    data, lo, hi, theta_full = units
+    free = np.asarray(target.free, int)
+    Kf, R = len(free), sum(target.rows)
+    z = trace[0]
+    th = to_box(z[..., :Kf], lo[:, None, None, :], hi[:, None, None, :])
+    theta = jnp.broadcast_to(theta_full[:, None, None, :], z.shape[:3] + theta_full.shape[-1:])
+    theta = theta.at[..., free].set(th)
+    log_sigma = z[..., Kf:Kf + R]
+    rho = None
+    if target.noise == "ar1":
+        v = z[..., Kf + R]
+        log_sigma, rho = log_sigma - 0.5 * log1m_tanh2(v)[..., None], jnp.tanh(v)
+    return theta, jnp.exp(log_sigma), rho, trace[1:], step, done
+
+
+# ------------------------------------------------------------------------------ the start
+def _start(residual, theta0, lo, hi, data, cov0, free, noise):
+    """Host: the sampler's start `z0` (U, D) and inverse mass matrix (U, D, D) per unit, from
+    the optimum, the Jacobian covariance and the residuals there (`lo`, `hi` (U, Kf) the free
+    unknowns' boxes)."""
+    blocks = jax.vmap(residual)(jnp.asarray(theta0), data)
+    idx = np.asarray(free, int)
+    Kf = idx.size
+    z0, imm = [], []
+    for i in range(theta0.shape[0]):
+        sig, rho, n = noise_start([(np.asarray(r[i]), np.asarray(m[i])) for r, m in blocks])
+        n = np.maximum(n, 1).astype(float)
+        # AR(1) residuals carry (1 - rho) / (1 + rho) of the information of independent ones
+        infl = min((1.0 + rho) / (1.0 - rho), 1e4) if noise == "ar1" and rho > 0 else 1.0
+        u0 = from_box(theta0[i, idx], lo[i], hi[i])
+        cu = _u_cov(None if cov0 is None else cov0[i][np.ix_(idx, idx)], u0, lo[i], hi[i])
+        var = [np.minimum(1.0 / (2.0 * n), MAX_U_VAR)]  # log sigma: 1 / (2 n) each
+        zi = [u0, np.log(sig)]
+        if noise == "ar1":  # the innovations' level sigma sqrt(1 - rho^2), and atanh(rho)
+            zi[1] = zi[1] + 0.5 * np.log1p(-rho * rho)
+            zi.append(np.array([np.arctanh(rho)]))
+            var.append(np.array([min(1.0 / (n.sum() * (1.0 - rho * rho)), MAX_U_VAR)]))
+        d = np.concatenate(var)
+        M = np.zeros((Kf + d.size, Kf + d.size))
+        M[:Kf, :Kf] = _clip_cov(cu * infl)
+        M[Kf:, Kf:] = np.diag(d)
+        z0.append(np.concatenate(zi))
+        imm.append(M)
+    return np.stack(z0), np.stack(imm)
+
+
+def _u_cov(cov: np.ndarray | None, u0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The covariance of the bounded map's `u` from a covariance of theta (delta method),
+    `FALLBACK_U_VAR` where it is undefined, variances capped at `MAX_U_VAR`."""
+    K = u0.size
+    s = 1.0 / (1.0 + np.exp(-u0))
+    g = (hi - lo) * s * (1.0 - s)  # d theta / d u
+    g = np.where(g > 0, g, 1.0)
+    if cov is None:
+        return np.eye(K) * FALLBACK_U_VAR
+    c = np.asarray(cov, float) / np.outer(g, g)
+    var = np.diag(c).copy()
+    ok = np.isfinite(var) & (var > 0)
+    var = np.where(ok, np.minimum(var, MAX_U_VAR), FALLBACK_U_VAR)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = c / np.sqrt(np.outer(np.diag(c), np.diag(c)))
+    good = np.outer(ok, ok) & np.isfinite(corr)
+    corr = np.where(good, np.clip(corr, -1.0, 1.0), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    sd = np.sqrt(var)
+    return corr * np.outer(sd, sd)
+
+
+def _clip_cov(c: np.ndarray) -> np.ndarray:
+    """A symmetric positive-definite matrix near `c`: eigenvalues floored at 1e-8 of the largest,
+    variances capped at `MAX_U_VAR`."""
+    c = 0.5 * (c + c.T)
+    w, V = np.linalg.eigh(c)
+    w = np.maximum(w, 1e-8 * max(float(w.max()), 1e-300))
+    c = (V * w) @ V.T
+    d = np.sqrt(np.diag(c))
+    scale = np.minimum(1.0, np.sqrt(MAX_U_VAR) / d)
+    return c * np.outer(scale, scale)
+
+
+# ------------------------------------------------------------------------------ entry point
+def sample(
+    residual: Callable,
+    theta0: ArrayLike,
+    data: Any,
+    *,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    names: Sequence[str],
+    labels: Sequence[str] | None = None,
+    row_labels: Sequence[str] | None = None,
+    cov0: ArrayLike | None = None,
+    sampler: Sampler | None = None,
+    noise: str = "iid",
+    prior: Mapping[str, Any] | None = None,
+    key: Any = None,
+    seed: int = 0,
+    progress: bool | None = False,
+    unit_dim: str = "condition",
+    units: Sequence[str] | None = None,
+) -> Posterior:
+    """Sample the posterior of a residual function's unknowns with NUTS, on every unit at once.
+
+    **Arguments:**
+
+    - `residual`: `residual(theta (K,), unit_data) -> ((r, mask), ...)`, a tuple of blocks of
+        residuals [N] and scored-sample masks, each (R_b, T_b) records by samples; jittable,
+        written for one unit (it is vmapped); hashable (an `eqx.Module` or a module-level
+        function, so that a second call reuses the compiled program).
+    - `theta0`: (U, K) the polished optimum of each unit, SI units: the chains start around it.
+    - `data`: pytree whose leaves have a leading unit axis U.
+    - `lower`, `upper`: (K,) or (U, K) the box of the unknowns (the fit's bounds), SI units;
+        a parameter with `lower == upper` everywhere is held fixed.
+    - `names`: (K,) the unknowns' names (the posterior's variables).
+    - `labels`: (U,) unit labels (coordinates of `unit_dim`); default `"0"`, `"1"`, ...
+    - `row_labels`: names of the R records of a unit (coordinates of `noise_sigma`'s `record`
+        dim where R > 1).
+    - `cov0`: (U, K, K) the Jacobian covariance at the optimum (NaN where undefined), for the
+        starting inverse mass matrix and the chains' starting spread; None: a default spread.
+    - `sampler`: :class:`Sampler` settings (draws, chains, warmup, ...).
+    - `noise`: `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`).
+    - `prior`: {name: prior} (see `mrjax.bayes.parse_prior`); default flat on the box.
+    - `key`: JAX PRNG key (default `jax.random.key(seed)`); each unit's chains use
+        `fold_in(key, unit index)`: same key, same draws.
+    - `progress`: a tqdm bar over warmup + draws (None: only on a TTY).
+    - `unit_dim`: the name of the unit dimension in the posterior (`"condition"`).
+    - `units`: (K,) SI units of the unknowns, for the tables.
+
+    **Returns:** a :class:`mrjax.bayes.Posterior`.
+
+    Raises :class:`mrjax.InputError` for bad settings, an unknown noise model or prior, or
+    shapes that do not match.
+    """
+    sampler = (sampler or Sampler()).check()
+    noise = check_noise(noise)
+    names = tuple(str(n) for n in names)
+    K = len(names)
+    theta0 = np.asarray(theta0, float)
+    if theta0.ndim != 2 or theta0.shape[1] != K:
+        raise InputError(f"theta0 must be (units, {K}), got shape {theta0.shape}")
+    U = theta0.shape[0]
+    lo = np.broadcast_to(np.asarray(lower, float), (U, K))
+    hi = np.broadcast_to(np.asarray(upper, float), (U, K))
+    if np.any(~np.isfinite(lo)) or np.any(~np.isfinite(hi)) or np.any(lo > hi):
+        raise InputError("the box of the unknowns must be finite with lower <= upper")
+    if not np.all(np.isfinite(theta0)):
+        raise InputError("the optimum theta0 must be finite")
+    priors = check_priors(prior, names)
+    kind, a, b, lo, hi = prior_arrays(priors, names, lo, hi)
+    theta0 = np.clip(theta0, lo, hi)
+    free = tuple(int(j) for j in np.flatnonzero(np.any(hi > lo, axis=0)))
+    if not free:
+        raise InputError("no free unknowns: every lower bound equals its upper bound")
+    labels = tuple(str(s) for s in labels) if labels is not None else tuple(map(str, range(U)))
+    if len(labels) != U:
+        raise InputError(f"{len(labels)} labels for {U} units")
+    if cov0 is not None:
+        cov0 = np.asarray(cov0, float)
+        if cov0.shape != (U, K, K):
+            raise InputError(f"cov0 must be ({U}, {K}, {K}), got {cov0.shape}")
+    shapes = jax.eval_shape(residual, jnp.asarray(theta0[0]),
+                            jax.tree.map(lambda x: x[0], data))
+    rows = tuple(int(s[0].shape[0]) for s in shapes)
+    target = _Target(residual=residual, free=free, rows=rows, noise=noise,
+                     forward=sampler.gradient == "forward")
+    z0, imm = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
+    # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
+    # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
+    # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
+    L = np.linalg.cholesky(imm)
+    if key is None:
+        key = jax.random.key(int(seed))
+    keys = jax.vmap(lambda i: jax.random.split(jax.random.fold_in(key, i), sampler.chains))(
+        jnp.arange(U))
+    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(theta0))
+    prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    t0 = time.perf_counter()
+    bar = None
+    if show:
+        from tqdm.auto import tqdm  # imported here: only a shown bar needs it
+
+        total = (sampler.warmup + sampler.draws) * (1 if vectorized(sampler) else
+                                                     U * sampler.chains)
+        bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
+                   leave=False, file=sys.stderr)
+        _BAR[0] = bar
+    try:
+        out = _run(target, prior_data, sampler, show, units_data, jnp.asarray(z0),
+                   jnp.asarray(L), keys)
+        out = jax.block_until_ready(out)
+    finally:
+        _BAR[0] = None
+        if bar is not None:
+            bar.close()
+    theta, sigma, rho, (lp, div, steps, acc), step_size, _ = out
+    wall = time.perf_counter() - t0
+    desc = {n: p.describe() for n, p in priors.items()}
+    return Posterior(
+        names=names, labels=labels, row_labels=None if row_labels is None else
+        tuple(map(str, row_labels)), unit_dim=unit_dim,
+        theta=np.asarray(theta), sigma=np.asarray(sigma),
+        rho=None if rho is None else np.asarray(rho), lp=np.asarray(lp),
+        diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
+        accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
+        theta0=theta0, lower=lo, upper=hi, free=np.isin(np.arange(K), free), noise=noise,
+        prior=desc, sampler=sampler, seed=int(seed), timings={"sample": wall},
+        param_units=None if units is None else tuple(units))

@@ -1,0 +1,119 @@
+"""`mrjax fit --posterior`: the options of the per-test posterior and its outputs."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import Any
+
+from .._errors import InputError
+from ._common import use_agg
+from ._parse import POSTERIOR_DEFAULTS as DEFAULTS
+from ._parse import say
+
+
+def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any] | None:
+    """The checked keyword arguments of `mrjax.posterior` from the command line, or None
+    without `--posterior`; `names` the model's parameters. Raises :class:`mrjax.InputError`
+    (before any fitting) for an impossible option or for one given without `--posterior`."""
+    from ..bayes import DATA_CHOICES, NOISE_MODELS, Sampler, check_priors
+
+    given = [f"--{k.replace('_', '-')}" for k in (*DEFAULTS, "posterior_data", "prior")
+             if getattr(args, k, None) is not None]
+    if not args.posterior:
+        if given:
+            raise InputError(f"{given[0]} needs --posterior")
+        return None
+    kw = {k: (getattr(args, k) if getattr(args, k) is not None else v)
+          for k, v in DEFAULTS.items()}
+    Sampler(draws=kw["draws"], chains=kw["chains"], warmup=kw["warmup"]).check()
+    if kw["noise"] not in NOISE_MODELS:
+        raise InputError(f"--noise must be one of {', '.join(NOISE_MODELS)}, got "
+                         f"{kw['noise']!r}")
+    if args.posterior_data is not None and args.posterior_data not in DATA_CHOICES:
+        raise InputError(f"--posterior-data must be one of {', '.join(DATA_CHOICES)}, got "
+                         f"{args.posterior_data!r}")
+    prior = {}
+    for item in args.prior or ():
+        name, sep, spec = item.partition("=")
+        if not sep or not name.strip():
+            raise InputError(f"--prior expects NAME=KIND:A:B, got {item!r}")
+        prior[name.strip()] = spec
+    kw.update(likelihood_data=args.posterior_data, prior=check_priors(prior, names) or None)
+    return kw
+
+
+def run_posterior(settings: dict[str, Any], result: Any, batch: Any, *, bounds: Any,
+                  transient: Any, seed: int, plots: bool) -> tuple[Any, dict[str, bytes]]:
+    """The posterior of a per-test fit and its files: `posterior.nc`, `posterior.csv` and (with
+    `plots`) the figures of `mrjax.report.posterior_figures`."""
+    from ..bayes import posterior
+
+    how = settings["likelihood_data"] or ("view" if result.model.dynamic else "record")
+    say(f"sampling the posterior ({settings['chains']} chains x {settings['draws']} draws, "
+        f"{settings['noise']} noise, {how})...")
+    tp = posterior(result, batch, seed=seed, bounds=bounds, transient=transient, progress=None,
+                   **settings)
+    files = {"posterior.nc": tp.netcdf_bytes(), "posterior.csv": tp.to_csv().encode()}
+    if plots:
+        use_agg()
+        from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+        band = tp.predict_band(batch)
+        files.update(rp.posterior_figures(tp, band))
+    return tp, files
+
+
+def run_band(args: argparse.Namespace, out: Any) -> int:
+    """`mrjax predict --fit DIR --band PCT`: the posterior predictive band of a per-test fit
+    (its `posterior.nc`) on records of the same tests, with the coverage of the measured
+    force; writes predict.json, predict.csv and predict_band.png."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from .. import __version__
+    from .._io import json_bytes
+    from .._tables import format_table
+    from ..bayes import predictive_band, read_draws
+    from ..models import from_source, get
+    from ._common import data_spec, load_batch, read_fit_json, say_estimates
+
+    if not 0.0 < args.band < 100.0:
+        raise InputError(f"--band must be a percentage in (0, 100), got {args.band:g}")
+    doc = read_fit_json(args.fit)
+    fit_dir = Path(args.fit).expanduser()
+    fit_dir = fit_dir if fit_dir.is_dir() else fit_dir.parent
+    nc = fit_dir / "posterior.nc"
+    if not nc.is_file():
+        raise InputError(f"{args.fit}: no posterior.nc beside the fit.json; run `mrjax fit "
+                         f"DATA... --model NAME --posterior` first")
+    model = (get(args.model) if args.model else
+             from_source(str(doc.get("model")), doc.get("model_source")))
+    labels, theta, sigma = read_draws(nc, model.param_names)
+    batch = load_batch(args.files, data_spec(args))
+    say_estimates(batch)
+    say(f"predicting {batch.n_conditions} record(s) with the posterior of {len(labels)} "
+        f"test(s), {args.band:g} % band...")
+    band = predictive_band(model, theta, sigma, labels, batch, level=args.band / 100.0)
+    report = {"fit": str(args.fit), "model": model.name, "mrjax_version": __version__,
+              "band": band.to_dict(), "draws_used": int(theta.shape[1])}
+    rows = [[lab, 100 * c, 100 * fc, 100 * e] for lab, c, fc, e in
+            zip(band.labels, band.coverage, band.force_coverage, band.nrmse)]
+    csv = "label,coverage,force_coverage,nrmse\n" + "".join(
+        f"{lab},{c:.6g},{fc:.6g},{e:.6g}\n" for lab, c, fc, e in
+        zip(band.labels, band.coverage, band.force_coverage, band.nrmse))
+    files = {"predict.json": json_bytes(report), "predict.csv": csv.encode()}
+    if not args.no_plots:
+        use_agg()
+        from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+        files["predict_band.png"] = rp.save_png_bytes(rp.plot_predictive_band(band))
+    say(f"writing {len(files)} files to {out.path}...")
+    out.write(files)
+    print(format_table(rows, ["record", f"in {args.band:g}% band %", "in force band %",
+                              "NRMSE%"], floatfmt=["", ".1f", ".1f", ".2f"]))
+    print(f"{model.name} posterior: the {args.band:g} % band covers "
+          f"{100 * float(np.mean(band.coverage)):.1f} % of the measured force (mean over "
+          f"{len(rows)} record(s))")
+    return 0

@@ -1,0 +1,366 @@
+"""The posterior (issue 25): the NUTS core on known answers, the per-test kind on short
+simulated records (tanh and Dahl), NaN-safety, seeds, bad options, files and the command
+line. The calibration study and the speed figures are in `benchmarks/posterior.py`.
+"""
+
+import json
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import check_pngs, one_error_line, short_batch
+from helpers import run_cli as run
+
+import mrjax
+from mrjax import InputError
+from mrjax.bayes import LogNormal, Normal, Sampler, Uniform, sample
+
+SHORT = Sampler(draws=300, chains=2, warmup=300)
+#: One compiled program serves most core tests: same residual, shapes and sampler (priors and
+#: boxes are data).
+BOX = dict(lower=[-10.0, -10.0], upper=[10.0, 10.0], names=("a", "b"), sampler=SHORT)
+
+
+# --------------------------------------------------------------------------------------------
+# The core on a problem with a closed-form posterior
+
+
+class Line(eqx.Module):  # a module: hashable, so a second call reuses the compiled program
+    """Residuals of a straight line a + b t against y on one record; NaN where a > `nan_above`
+    (data, so that the NaN test reuses the same compiled program)."""
+
+    nan_above: jax.Array = eqx.field(default_factory=lambda: jnp.asarray(jnp.inf))
+
+    def __call__(self, theta, unit):
+        t, y, m = unit
+        r = (theta[0] + theta[1] * t) - y
+        return ((jnp.where(theta[0] > self.nan_above, jnp.nan, r)[None], m[None]),)
+
+
+def line_data(U=2, T=200, sigma=0.5, rho=0.0, seed=0):
+    """U records y = a + b t + noise (AR(1) with `rho`), truth (U, 2)."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, T)
+    truth = np.column_stack([rng.uniform(-1, 1, U), rng.uniform(1, 3, U)])
+    e = np.zeros((U, T))
+    e[:, 0] = rng.standard_normal(U) * sigma
+    for k in range(1, T):
+        e[:, k] = rho * e[:, k - 1] + np.sqrt(1 - rho**2) * sigma * rng.standard_normal(U)
+    y = truth[:, :1] + truth[:, 1:] * t + e
+    return (np.broadcast_to(t, (U, T)).copy(), y, np.ones((U, T), bool)), truth
+
+
+def ols(data):
+    """Least-squares estimates (U, 2), their std-errors (U, 2) and covariances (U, 2, 2)."""
+    t, y, _ = data
+    est, se, cov = [], [], []
+    for tt, yy in zip(t, y):
+        X = np.column_stack([np.ones_like(tt), tt])
+        b, rss, *_ = np.linalg.lstsq(X, yy, rcond=None)
+        c = rss[0] / (len(yy) - 2) * np.linalg.inv(X.T @ X)
+        est.append(b), se.append(np.sqrt(np.diag(c))), cov.append(c)
+    return np.array(est), np.array(se), np.array(cov)
+
+
+def test_core_matches_least_squares_posterior():
+    """Flat priors, iid noise: the posterior of a line is centred on least squares with its
+    std-errors (large n: the Student-t is nearly normal); the noise level is the residuals'
+    RMS."""
+    data, _ = line_data()
+    est, se, cov = ols(data)
+    post = sample(Line(), est, data, cov0=cov, **BOX)
+    th = post.theta.reshape(2, -1, 2)
+    # Monte Carlo error of a mean: sd / sqrt(ESS), ESS >= 150 -> < 0.1 sd
+    np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
+    np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.2)
+    sig = post.draws("noise_sigma")[..., 0]
+    resid = [np.sqrt(np.mean((y - e[0] - e[1] * t) ** 2)) for t, y, e in zip(data[0], data[1],
+                                                                              est)]
+    np.testing.assert_allclose(np.median(sig, axis=1), resid, rtol=0.05)
+    d = post.diagnostics()
+    assert d["r_hat_max"] < 1.02 and d["divergences"] == 0
+
+
+def test_core_ar1_recovers_rho_and_widens_intervals():
+    """AR(1) noise with rho = 0.8: the ar1 likelihood covers rho and gives intervals about
+    sqrt((1 + rho) / (1 - rho)) = 3 x the iid ones (for the slope of a line through
+    correlated noise)."""
+    data, truth = line_data(rho=0.8, seed=1)
+    est, se, cov = ols(data)
+    iid = sample(Line(), est, data, noise="iid", cov0=cov, **BOX)
+    ar1 = sample(Line(), est, data, noise="ar1", cov0=cov, **BOX)
+    lo, hi = ar1.interval("noise_rho", 0.999).T  # 200 samples: rho is known to +-0.1
+    assert np.all((lo < 0.8) & (0.8 < hi)), (lo, hi)
+    ratio = np.ptp(ar1.interval("b"), axis=1) / np.ptp(iid.interval("b"), axis=1)
+    assert np.all((ratio > 2.0) & (ratio < 4.5)), ratio
+    assert "noise_rho" in ar1.idata.posterior
+
+
+def test_priors_pull_and_narrow():
+    """A tight normal prior pulls the posterior mean to it; a uniform prior cuts the box."""
+    data, _ = line_data()
+    est, se, cov = ols(data)
+    target = est[0, 0] + 5 * se[0, 0]
+    p = sample(Line(), est, data, prior={"a": Normal(target, se[0, 0] / 10)}, cov0=cov, **BOX)
+    assert abs(p.draws("a")[0].mean() - target) < 0.2 * se[0, 0]
+    cut = est[0, 1] - se[0, 1]
+    q = sample(Line(), est, data, prior={"b": Uniform(-10.0, cut)}, cov0=cov, **BOX)
+    assert q.draws("b")[0].max() <= cut
+    assert q.prior == {"b": f"uniform(-10, {cut:g})"}
+
+
+def test_nan_model_output_is_minus_inf_never_nan():
+    """A residual that is NaN on half of the box (a > 0) while the likelihood peaks at
+    a = -0.05 (half a std-error inside): no NaN anywhere, every draw in the finite half."""
+
+    data, _ = line_data()
+    est, se, cov = ols(data)
+    shift = -0.5 * se[:, :1] - est[:, :1]
+    data = (data[0], data[1] + shift, data[2])
+    est[:, :1] += shift
+    post = sample(Line(jnp.asarray(0.0)), est, data, cov0=cov, **BOX)
+    assert np.all(np.isfinite(post.theta)) and np.all(np.isfinite(post.lp))
+    assert post.theta[..., 0].max() <= 0.0
+    assert np.all(post.theta[..., 0].min(axis=(1, 2)) < est[:, 0] - se[:, 0])  # explored
+
+
+def test_same_seed_same_draws():
+    data, _ = line_data()
+    est, _, cov = ols(data)
+    a = sample(Line(), est, data, seed=3, cov0=cov, **BOX)
+    b = sample(Line(), est, data, seed=3, cov0=cov, **BOX)
+    c = sample(Line(), est, data, seed=4, cov0=cov, **BOX)
+    np.testing.assert_array_equal(a.theta, b.theta)
+    np.testing.assert_array_equal(a.sigma, b.sigma)
+    assert not np.array_equal(a.theta, c.theta)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(sampler=Sampler(draws=0)), "draws must be a positive integer"),
+    (dict(sampler=Sampler(chains=-1)), "chains must be"),
+    (dict(noise="gauss"), "noise must be one of iid, ar1"),
+    (dict(prior={"bb": Normal(0, 1)}), "did you mean 'b'"),
+    (dict(prior={"b": Normal(0, -1)}), "sd must be positive"),
+    (dict(prior={"b": "cauchy:0:1"}), "expected one of normal"),
+    (dict(prior={"b": LogNormal(1.0, 0.5)}), "log-normal prior needs a box"),
+    (dict(prior={"b": Uniform(20.0, 30.0)}), "does not meet the bounds"),
+])
+def test_bad_options_one_line(bad, match):
+    data, _ = line_data()
+    kw = dict(BOX, **bad)
+    with pytest.raises(InputError, match=match) as e:
+        sample(Line(), np.zeros((2, 2)), data, **kw)
+    assert "\n" not in str(e.value)
+
+
+def test_diagnostics_flag_split_chains_and_divergences():
+    """Known answer for the checks: two chains centred 5 sd apart give R-hat >> 1.01, a
+    divergent draw is counted, and well-mixed independent draws pass."""
+    from mrjax.bayes import Posterior
+
+    rng = np.random.default_rng(0)
+    U, C, N = 2, 2, 1000
+    theta = rng.standard_normal((U, C, N, 1))
+    theta[1, 1] += 5.0
+    div = np.zeros((U, C, N), bool)
+    div[1, 0, 7] = True
+    post = Posterior(
+        names=("a",), labels=("ok", "bad"), row_labels=None, unit_dim="condition", theta=theta,
+        sigma=np.exp(0.01 * rng.standard_normal((U, C, N, 1))), rho=None, lp=np.zeros((U, C, N)),
+        diverging=div, n_steps=np.full((U, C, N), 3), accept=np.full((U, C, N), 0.8),
+        step_size=np.ones((U, C)), theta0=np.zeros((U, 1)), lower=np.full((U, 1), -9.0),
+        upper=np.full((U, 1), 9.0), free=np.array([True]), noise="iid", prior={},
+        sampler=Sampler(draws=N, chains=C), seed=0, timings={})
+    lines = post.problems()
+    assert any("R-hat > 1.01" in ln and "'bad'" in ln for ln in lines), lines
+    assert any("1 divergent transition(s) in 1 condition(s)" in ln for ln in lines), lines
+    df = post.summary()
+    ok = df[(df.variable == "a") & (df.condition == "ok")].iloc[0]
+    assert ok.r_hat < 1.01 and ok.ess_bulk > 1000
+    assert df[(df.variable == "a") & (df.condition == "bad")].iloc[0].r_hat > 1.5
+
+
+# --------------------------------------------------------------------------------------------
+# The per-test kind on short simulated records
+
+
+@pytest.fixture(scope="module")
+def tanh_post():
+    batch, truth = short_batch("kwok", noise_frac=0.02)
+    res = mrjax.fit("kwok", batch, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        tp = mrjax.posterior(res, batch, draws=400, chains=2, warmup=400, seed=0)
+    return batch, truth, res, tp
+
+
+def covered(tp, truth, level=0.95):
+    post = tp.posterior
+    return np.array([[lo <= t <= hi for (lo, hi), t in zip(post.interval(n, level), truth[:, j])]
+                     for j, n in enumerate(post.names)]).T
+
+
+def test_tanh_intervals_cover_the_truth(tanh_post):
+    """Known answer: the 95 % intervals of the 2 x 6 parameters cover the truth (at most one
+    miss: 12 pairs at 95 % miss 0.6 on average), and every truth lies in its 99.9 % interval."""
+    batch, truth, res, tp = tanh_post
+    assert covered(tp, truth).sum() >= 11, tp.table()
+    assert covered(tp, truth, 0.999).all(), tp.table()
+    d = tp.posterior.diagnostics()
+    assert d["r_hat_max"] < 1.05 and d["divergences"] == 0
+    assert tp.data == "record" and list(tp.n_scored) == list(res.n_samples)
+
+
+def test_predictive_band_covers_new_records(tanh_post):
+    """A new record of the same tests (other noise): the 95 % predictive band covers about 95 %
+    of it; the band of the model force alone covers far less (it leaves the noise out)."""
+    batch, truth, res, tp = tanh_post
+    new, _ = short_batch("kwok", noise_frac=0.02, seed=10)
+    band = tp.predict_band(new)
+    assert np.all((band.coverage > 0.88) & (band.coverage < 0.995)), band.coverage
+    assert np.all(band.force_coverage < band.coverage)
+    assert band.lower.shape == np.asarray(new.force).shape
+    with pytest.raises(InputError, match="band level"):
+        tp.predict_band(new, level=95)
+
+
+def test_posterior_files_and_fit_json(tanh_post, tmp_path):
+    """posterior.nc opens in arviz and xarray with the model's names, dims chain / draw /
+    condition and the test labels; posterior.csv and the fit.json entry hold the summary."""
+    az = mrjax.bayes._result.arviz()  # noqa: SLF001 - the quiet import
+    import xarray as xr
+
+    batch, truth, res, tp = tanh_post
+    path = tmp_path / "posterior.nc"
+    path.write_bytes(tp.netcdf_bytes())
+    idata = az.from_netcdf(path)
+    ds = xr.open_dataset(path, group="posterior", engine="h5netcdf")
+    for name in res.param_names:
+        assert ds[name].dims == ("chain", "draw", "condition")
+    assert list(ds["condition"].values) == list(batch.labels)
+    assert ds.sizes["chain"] == 2 and ds.sizes["draw"] == 400
+    assert "diverging" in idata.sample_stats
+    np.testing.assert_allclose(ds["c"].values, np.moveaxis(tp.posterior.theta[..., 0], 0, -1))
+    csv = tp.to_csv().splitlines()
+    assert csv[0].split(",")[:9] == ["variable", "condition", "mean", "sd", "q2.5", "q50",
+                                     "q97.5", "r_hat", "ess_bulk"]
+    assert len(csv) == 1 + 2 * 7  # 6 parameters and noise_sigma, two tests
+    doc = json.loads(res.to_json(posterior=tp))
+    p = doc["posterior"]
+    assert p["draws"] == 400 and p["noise"] == "iid" and p["likelihood_data"] == "record"
+    assert set(p["conditions"][0]) >= {"label", "c", "noise_sigma", "divergences"}
+    assert set(p["conditions"][0]["c"]) == {"mean", "sd", "q2.5", "q50", "q97.5", "r_hat",
+                                            "ess_bulk", "ess_tail"}
+
+
+def test_figures(tanh_post):
+    import mrjax.report as rp
+
+    batch, truth, res, tp = tanh_post
+    pngs = rp.posterior_figures(tp, tp.predict_band(batch))
+    assert set(pngs) == {"posterior_pair.png", "posterior_intervals.png", "posterior_band.png"}
+    assert all(v[:4] == b"\x89PNG" and len(v) > 5000 for v in pngs.values())
+
+
+def test_dynamic_model_intervals_cover_the_truth():
+    """Known answer with an ODE model (Dahl) on two short records (500 and 833 samples), its
+    likelihood on the swarm's view (the default for dynamic models; whole short records):
+    every truth in its 99.9 % interval, at most one of 10 outside its 95 % one."""
+    batch, truth = short_batch("dahl", noise_frac=0.02)
+    res = mrjax.fit("dahl", batch, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        tp = mrjax.posterior(res, batch, draws=300, chains=2, warmup=300, seed=0)
+    assert tp.data == "view"
+    assert covered(tp, truth).sum() >= 9, tp.table()
+    assert covered(tp, truth, 0.999).all(), tp.table()
+    assert np.all(np.isfinite(tp.posterior.theta))
+
+
+def test_warnings_without_polish_and_at_bounds(tanh_post):
+    batch, _, _, _ = tanh_post
+    res = mrjax.fit("kwok", batch, seed=0, method="pso", max_generations=5)
+    hi = dict(zip(res.param_names, res.theta.max(axis=0)))
+    with pytest.warns(RuntimeWarning) as rec:  # the fixture's settings: no new compilation
+        mrjax.posterior(res, batch, draws=400, chains=2, warmup=400,
+                        bounds=(None, {"c": hi["c"]}))
+    text = " ".join(str(w.message) for w in rec)
+    assert "without polish" in text
+    assert "at bounds" in text and "c = " in text
+
+
+def test_per_test_bad_input(tanh_post):
+    batch, _, res, _ = tanh_post
+    with pytest.raises(InputError, match="draws must be a positive integer"):
+        mrjax.posterior(res, batch, draws=0)
+    with pytest.raises(InputError, match="noise must be one of"):
+        mrjax.posterior(res, batch, noise="white")
+    with pytest.raises(InputError, match="likelihood_data must be one of"):
+        mrjax.posterior(res, batch, likelihood_data="both")
+    with pytest.raises(InputError, match="not the fit's conditions"):
+        mrjax.posterior(res, batch.subset([0]))
+    with pytest.raises(InputError, match="outside the bounds"):
+        mrjax.posterior(res, batch, bounds=(None, {"c": 0.5 * res.theta[0, 0]}))
+
+
+# --------------------------------------------------------------------------------------------
+# The command line
+
+
+def write_tests(folder):
+    """The two records of the `tanh_post` fixture in the UTFSM text layout (t [s], x [mm],
+    v [mm/s], F [N]; frequency and amplitude in the file name): the command line's posterior
+    then reuses the fixture's compiled program."""
+    folder.mkdir()
+    batch, _ = short_batch("kwok", noise_frac=0.02)
+    for c, name in zip(batch.conditions(), ("15mm2x5Hz0A.txt", "8mm1x5Hz0A.txt")):
+        np.savetxt(folder / name, np.c_[c.t, c.x * 1e3, c.xdot * 1e3, c.force])
+    return folder
+
+
+def test_cli_posterior_writes_files(tanh_post, tmp_path):
+    data = write_tests(tmp_path / "data")
+    out = tmp_path / "out"
+    code, stdout, err = run(["fit", data, "--model", "kwok", "--posterior", "--draws", "400",
+                             "--chains", "2", "--warmup", "400", "--prior",
+                             "beta=lognormal:100:1", "--out", out])
+    assert code == 0, err
+    assert "noise_sigma" in stdout and "leapfrog steps per draw" in stdout
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["posterior"]["noise"] == "iid" and doc["posterior"]["chains"] == 2
+    assert doc["posterior"]["prior"] == {"beta": "lognormal(100, 1)"}
+    assert [c["label"] for c in doc["posterior"]["conditions"]] == ["15mm2x5Hz0A", "8mm1x5Hz0A"]
+    check_pngs(out, ["posterior_pair.png", "posterior_intervals.png", "posterior_band.png"])
+    assert (out / "posterior.nc").read_bytes()[:4] == b"\x89HDF"
+    assert (out / "posterior.csv").read_text().startswith("variable,condition,mean")
+    # the predictive band of that fit on the same records, from its posterior.nc
+    pred = tmp_path / "pred"
+    code, stdout, err = run(["predict", "--fit", out, "--band", "95", data, "--out", pred])
+    assert code == 0, err
+    band = json.loads((pred / "predict.json").read_text())["band"]
+    assert band["level"] == 0.95 and len(band["conditions"]) == 2
+    assert all(0.85 < c["coverage"] <= 1.0 for c in band["conditions"]), band
+    check_pngs(pred, ["predict_band.png"])
+    code, _, err = run(["predict", "--fit", out, "--band", "0", data, "--out", pred / "x"])
+    assert code == 2 and "--band must be a percentage" in one_error_line(err)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--posterior", "--draws", "0"], "draws must be a positive integer"),
+    (["--posterior", "--noise", "gauss"], "--noise must be one of iid, ar1"),
+    (["--draws", "10"], "--draws needs --posterior"),
+    (["--posterior", "--prior", "c"], "--prior expects NAME=KIND:A:B"),
+    (["--posterior", "--prior", "cc=normal:1:1"], "did you mean 'c'"),
+    (["--posterior", "--posterior-data", "all"], "--posterior-data must be one of"),
+])
+def test_cli_bad_posterior_options(tmp_path, argv, match):
+    """Impossible options: one error line, exit 2, nothing written, before any fit."""
+    data = write_tests(tmp_path / "data")
+    out = tmp_path / "out"
+    code, _, err = run(["fit", data, "--model", "kwok", "--out", out, *argv])
+    assert code == 2
+    assert match in one_error_line(err)
+    assert not out.exists()
