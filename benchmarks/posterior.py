@@ -69,7 +69,7 @@ def cached_fit(model: str):
 
     CACHE.mkdir(parents=True, exist_ok=True)
     path = CACHE / f"fit_{model}.json"
-    batch = mrjax.fitting.as_batch(utfsm())
+    batch = mrjax.data.as_batch(utfsm())
     if path.exists():
         res = mrjax.FitResult.from_state(json.loads(path.read_text()), mrjax.models.get(model))
         return res, batch, 0.0
@@ -139,7 +139,7 @@ def gradient_cost() -> list[dict[str, Any]]:
         res, batch = res.subset([i]), batch.subset([i])
         mask = batch.mask
         if data == "view":
-            v = mrjax.fitting.swarm_view(batch)
+            v = mrjax.data.swarm_view(batch)
             batch, mask = v.batch, v.mask
         theta = jnp.asarray(res.theta[0])
         model = mrjax.models.resolve_model(res.model, res.theta, batch.xdot, batch.dt, batch.mask)
