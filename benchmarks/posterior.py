@@ -133,9 +133,9 @@ def cold_cli(model: str, tests: str = "all", extra: tuple[str, ...] = ()) -> dic
     tmp = Path(tempfile.mkdtemp(prefix="mrjax-post-cli-"))
     data = [str(utfsm())] if tests == "all" else [str(utfsm() / f"{t}.txt")
                                                   for t in tests.split(",")]
-    argv = [sys.executable, "-m", "mrjax", "fit", *data, "--model", model, "--posterior",
+    argv = [str(Path(sys.executable).with_name("mrjax")), "fit", *data, "--model", model, "--posterior",
             "--no-plots", "--out", str(tmp / "out"), *extra]
-    log("cli " + " ".join(argv[3:]))
+    log("cli " + " ".join(argv[1:]))
     env = dict(os.environ, MRJAX_CACHE_DIR="off", JAX_PLATFORMS="cpu")
     load0, t0 = os.getloadavg()[0], time.perf_counter()
     p = subprocess.run(argv, cwd=HERE.parent, env=env, capture_output=True, text=True)
@@ -407,6 +407,34 @@ def render(doc: dict[str, Any]) -> str:
                     [[r["model"], r["data"], r["samples"], r["integration"], r["force_ms"],
                       r["grad_ms"], r["ratio"], r.get("grad_fwd_ms", float("nan")),
                       r.get("ratio_fwd", float("nan"))] for r in doc["cost"]]), ""]
+    if "figure" in doc:
+        rows = []
+        for model, d in doc["figure"].items():
+            ratio, none, cov_j, cov_p, n = [], 0, 0, 0, 0
+            for p in d["params"].values():
+                j, q = np.asarray(p["jacobian"], float), np.asarray(p["posterior"], float)
+                ok = np.all(np.isfinite(j), axis=1) & (np.ptp(j, axis=1) > 0)
+                none += int(np.sum(~ok))
+                ratio += list(np.ptp(q[ok], axis=1) / np.ptp(j[ok], axis=1))
+                if p.get("truth") is not None:
+                    t = np.asarray(p["truth"], float)
+                    cov_j += int(np.sum((j[:, 0] <= t) & (t <= j[:, 1])))
+                    cov_p += int(np.sum((q[:, 0] <= t) & (t <= q[:, 1])))
+                    n += t.size
+            dg = d["diagnostics"]
+            rows.append([model, len(d["labels"]), d["run"], float(np.median(ratio)),
+                         float(np.min(ratio)), float(np.max(ratio)), none,
+                         f"{cov_j}/{n}" if n else "-", f"{cov_p}/{n}" if n else "-",
+                         f"{dg['r_hat_max']:.4f}", dg["ess_bulk_min"], dg["divergences"],
+                         dg["leapfrog_per_draw"], d["posterior_s"]])
+        out += ["## Jacobian against posterior intervals (the README's figure)", "",
+                "`python -m benchmarks.posterior_figure`: `docs/posterior_intervals.png`. "
+                "Width ratio: the posterior's 95 % interval over the Jacobian's, over "
+                "parameters and tests that have a Jacobian interval.", "",
+                _md(["model", "tests", "run", "width ratio median", "min", "max",
+                     "no Jacobian interval", "truth in Jacobian", "truth in posterior",
+                     "R-hat max", "ESS bulk min", "divergences", "leapfrog/draw",
+                     "posterior s"], rows), ""]
     if "views" in doc:
         v = doc["views"]
         rows = []
