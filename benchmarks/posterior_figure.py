@@ -125,7 +125,7 @@ def plot(fig_doc: dict[str, Any]) -> None:
         axes[row][0].set_ylabel(title.split(":")[0], fontsize=8)
         axes[row][1].text(0.5, 1.13, title + f"  [{d['run']}]", transform=axes[row][1].transAxes,
                           ha="center", fontsize=8)
-    handles, labels = {}, {}
+    handles: dict[str, Any] = {}
     for ax in axes.ravel():
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
