@@ -45,7 +45,7 @@ from ._result import Posterior
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
 #: (not identifiable), and the most any unknown's starting variance may be.
-FALLBACK_U_VAR = 0.1**2
+FALLBACK_U_VAR = 1.0
 MAX_U_VAR = 4.0
 #: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
 #: starting standard deviation (its Jacobian one, widened for AR(1) noise), at most the box
