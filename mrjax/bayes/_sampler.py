@@ -44,7 +44,9 @@ from ._priors import box_slope, check_priors, from_box, log_jacobian, log_prior,
 from ._result import Posterior
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
-#: (not identifiable), and the most any unknown's starting variance may be.
+#: (not identifiable, or at a bound: its softness is then its box width, and a posterior that
+#: fills the box or piles against a bound spans a few units of `u`), and the most any
+#: unknown's starting variance may be.
 FALLBACK_U_VAR = 1.0
 MAX_U_VAR = 4.0
 #: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
@@ -67,9 +69,10 @@ class Sampler(eqx.Module):
     - `chains`: independent chains per unit.
     - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
     - `target_accept`: the step-size adaptation's target acceptance rate. 0.9 (Stan: 0.8):
-        the tanh model on short records (2 cycles, 4 mm) has curved posteriors (c, k, alpha,
-        beta correlated to 0.9); on 50 such records 0.8 gave 140 divergent transitions in
-        400,000, 0.9 gave 11, for 10 % more leapfrog steps (`benchmarks/posterior.py`).
+        the tanh model on short records (2 cycles, 4 mm) has correlated posteriors (c, k,
+        alpha, beta to 0.9); on the 50 such records of the calibration, through the soft box
+        (`mrjax.bayes.to_box`), 0.8 gave 1 divergent transition in 200,000 draws, 0.9 none,
+        for 6.7 leapfrog steps per draw (`benchmarks/posterior.py`).
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
