@@ -73,8 +73,9 @@ def mbw_utfsm(chains: int, draws: int, max_doublings: int) -> dict[str, Any]:
     res, batch, _ = cached_fit("modified_bouc_wen")
     idx = [list(batch.labels).index(t) for t in MBW_TESTS]
     res, batch = res.subset(idx), batch.subset(idx)
+    # one vmapped batch of every chain: a sequential integration's per-step cost is shared
     sampler = Sampler(draws=draws, warmup=draws, chains=chains, max_doublings=max_doublings,
-                      gradient="forward")
+                      gradient="forward", vectorize=True)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -106,23 +107,27 @@ def plot(fig_doc: dict[str, Any]) -> None:
         off = 0.04 * max(float(np.ptp(cur)), 1.0)
         for ax, name in zip(axes[row], SHOWN[model]):
             p = d["params"][name]
+            opt = np.asarray(p["optimum"], float)
+            rel = lambda v: 100.0 * (np.asarray(v, float) - opt[:, None]) / np.abs(opt)[:, None]
             for k, (key, colour, label) in enumerate((("jacobian", "k", "Jacobian 95 %"),
                                                       ("posterior", "C0", "posterior 95 %"))):
-                iv = np.asarray(p[key], float)
+                iv = rel(p[key])
                 ok = np.all(np.isfinite(iv), axis=1)
                 mid = 0.5 * (iv[:, 0] + iv[:, 1])
                 x = cur + (k - 0.5) * off
                 ax.errorbar(x[ok], mid[ok], yerr=0.5 * (iv[ok, 1] - iv[ok, 0]), fmt="none",
                             ecolor=colour, elinewidth=2.0, capsize=3, label=label)
                 if key == "jacobian" and not ok.all():
-                    ax.plot(x[~ok], np.asarray(p["optimum"], float)[~ok], "kx", ms=6,
+                    ax.plot(x[~ok], np.zeros(int(np.sum(~ok))), "kx", ms=6,
                             label="no Jacobian interval")
             if p.get("truth") is not None:
-                ax.plot(cur, p["truth"], "r_", ms=14, mew=2, label="truth")
+                ax.plot(cur, rel(np.asarray(p["truth"], float)[:, None])[:, 0], "r_", ms=14,
+                        mew=2, label="truth")
+            ax.axhline(0.0, color="0.8", lw=0.8, zorder=0)
             ax.set_title(name, fontsize=9)
             ax.set_xlabel("current [A]", fontsize=8)
             ax.tick_params(labelsize=7)
-        axes[row][0].set_ylabel(title.split(":")[0], fontsize=8)
+        axes[row][0].set_ylabel("from the fit's value [%]", fontsize=8)
         axes[row][1].text(0.5, 1.13, title + f"  [{d['run']}]", transform=axes[row][1].transAxes,
                           ha="center", fontsize=8)
     handles: dict[str, Any] = {}
