@@ -408,6 +408,9 @@ def render(doc: dict[str, Any]) -> str:
                       r["diagnostics"]["ess_bulk_min"], r["diagnostics"]["divergences"],
                       "/".join(f"{v:.1f}" for v in r.get("load", []))]
                      for r in rows]), ""]
+    if doc.get("speed_notes"):
+        out += ["Runs that did not finish (measured by hand, see the notes' commands):", ""]
+        out += [f"- {n}" for n in doc["speed_notes"]] + [""]
     if "cost" in doc:
         out += ["## One gradient against one force evaluation (test 10mm1Hz1A, warm)", "",
                 "Inside one compiled loop (no dispatch cost). The sampler uses the reverse "
