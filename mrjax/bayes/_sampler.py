@@ -40,13 +40,21 @@ from jaxtyping import ArrayLike
 
 from .._errors import InputError
 from ._noise import block_loglik, check_noise, log1m_tanh2, noise_start
-from ._priors import check_priors, from_box, log_jacobian, log_prior, prior_arrays, to_box
+from ._priors import box_slope, check_priors, from_box, log_jacobian, log_prior, prior_arrays, to_box
 from ._result import Posterior
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
-#: (not identifiable), and the most any unknown's starting variance may be.
-FALLBACK_U_VAR = 0.1**2
-MAX_U_VAR = 1.0
+#: (not identifiable, or at a bound: its softness is then its box width, and a posterior that
+#: fills the box or piles against a bound spans a few units of `u`), and the most any
+#: unknown's starting variance may be.
+FALLBACK_U_VAR = 1.0
+MAX_U_VAR = 4.0
+#: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
+#: starting standard deviation (its Jacobian one, widened for AR(1) noise), at most the box
+#: width (the box width where it is undefined): the map is linear over the posterior's bulk
+#: unless that reaches within a few `d` of a bound (then `u` has 2 starting standard
+#: deviations).
+SOFTNESS = 0.5
 #: Chains start at the optimum plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the optimum).
 JITTER = 1.0
@@ -61,9 +69,10 @@ class Sampler(eqx.Module):
     - `chains`: independent chains per unit.
     - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
     - `target_accept`: the step-size adaptation's target acceptance rate. 0.9 (Stan: 0.8):
-        the tanh model on short records (2 cycles, 4 mm) has curved posteriors (c, k, alpha,
-        beta correlated to 0.9); on 50 such records 0.8 gave 140 divergent transitions in
-        400,000, 0.9 gave 11, for 10 % more leapfrog steps (`benchmarks/posterior.py`).
+        the tanh model on short records (2 cycles, 4 mm) has correlated posteriors (c, k,
+        alpha, beta to 0.9); on the 50 such records of the calibration, through the soft box
+        (`mrjax.bayes.to_box`), 0.8 gave 1 divergent transition in 200,000 draws, 0.9 none,
+        for 6.7 leapfrog steps per draw (`benchmarks/posterior.py`).
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
@@ -136,7 +145,7 @@ def _forward_values(residual: Callable, theta, data):
 
 def _logdensity(target: _Target, prior, unit, z):
     """Log posterior density (up to a constant) of one unit at `z`; NaN or inf -> -inf."""
-    data, lo, hi, theta_full = unit
+    data, lo, hi, soft, theta_full = unit
     kind, a, b = prior
     Kf, R = len(target.free), sum(target.rows)
     free = np.asarray(target.free, int)
@@ -144,13 +153,13 @@ def _logdensity(target: _Target, prior, unit, z):
     v = z[Kf + R] if target.noise == "ar1" else None
     if v is not None:  # the position holds the innovations' level: the marginal one from it
         log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
-    th_free = to_box(u, lo, hi)
+    th_free = to_box(u, lo, hi, soft)
     theta = theta_full.at[free].set(th_free)
     blocks = target.residual(theta, data)
     if target.forward:  # the masks above; their values (dead code there) from forward mode
         blocks = tuple(zip(_forward_values(target.residual, theta, data),
                            (m for _, m in blocks)))
-    lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(u)
+    lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(u, lo, hi, soft)
     off = 0
     for (r, m), n in zip(blocks, target.rows):
         lp = lp + block_loglik(r, m, log_sigma[off:off + n], v)
@@ -237,11 +246,11 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
         over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
         trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
     # the box map and the noise transforms, in the program: draws come back in SI units
-    data, lo, hi, theta_full = units
+    data, lo, hi, soft, theta_full = units
     free = np.asarray(target.free, int)
     Kf, R = len(free), sum(target.rows)
     z = trace[0]
-    th = to_box(z[..., :Kf], lo[:, None, None, :], hi[:, None, None, :])
+    th = to_box(z[..., :Kf], lo[:, None, None, :], hi[:, None, None, :], soft[:, None, None, :])
     theta = jnp.broadcast_to(theta_full[:, None, None, :], z.shape[:3] + theta_full.shape[-1:])
     theta = theta.at[..., free].set(th)
     log_sigma = z[..., Kf:Kf + R]
@@ -254,42 +263,56 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
 
 # ------------------------------------------------------------------------------ the start
 def _start(residual, theta0, lo, hi, data, cov0, free, noise):
-    """Host: the sampler's start `z0` (U, D) and inverse mass matrix (U, D, D) per unit, from
-    the optimum, the Jacobian covariance and the residuals there (`lo`, `hi` (U, Kf) the free
-    unknowns' boxes)."""
+    """Host: the sampler's start `z0` (U, D), inverse mass matrix (U, D, D) and the bounded
+    map's softness (U, Kf) per unit, from the optimum, the Jacobian covariance and the
+    residuals there (`lo`, `hi` (U, Kf) the free unknowns' boxes)."""
     blocks = jax.vmap(residual)(jnp.asarray(theta0), data)
     idx = np.asarray(free, int)
     Kf = idx.size
-    z0, imm = [], []
+    z0, imm, soft = [], [], []
     for i in range(theta0.shape[0]):
         sig, rho, n = noise_start([(np.asarray(r[i]), np.asarray(m[i])) for r, m in blocks])
         n = np.maximum(n, 1).astype(float)
         # AR(1) residuals carry (1 - rho) / (1 + rho) of the information of independent ones
         infl = min((1.0 + rho) / (1.0 - rho), 1e4) if noise == "ar1" and rho > 0 else 1.0
-        u0 = from_box(theta0[i, idx], lo[i], hi[i])
-        cu = _u_cov(None if cov0 is None else cov0[i][np.ix_(idx, idx)], u0, lo[i], hi[i])
+        cov = None if cov0 is None else cov0[i][np.ix_(idx, idx)] * infl
+        d = _softness(cov, lo[i], hi[i])
+        u0 = from_box(theta0[i, idx], lo[i], hi[i], d)
+        cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d))
         var = [np.minimum(1.0 / (2.0 * n), MAX_U_VAR)]  # log sigma: 1 / (2 n) each
         zi = [u0, np.log(sig)]
         if noise == "ar1":  # the innovations' level sigma sqrt(1 - rho^2), and atanh(rho)
             zi[1] = zi[1] + 0.5 * np.log1p(-rho * rho)
             zi.append(np.array([np.arctanh(rho)]))
             var.append(np.array([min(1.0 / (n.sum() * (1.0 - rho * rho)), MAX_U_VAR)]))
-        d = np.concatenate(var)
-        M = np.zeros((Kf + d.size, Kf + d.size))
-        M[:Kf, :Kf] = _clip_cov(cu * infl)
-        M[Kf:, Kf:] = np.diag(d)
+        dv = np.concatenate(var)
+        M = np.zeros((Kf + dv.size, Kf + dv.size))
+        M[:Kf, :Kf] = _clip_cov(cu)
+        M[Kf:, Kf:] = np.diag(dv)
         z0.append(np.concatenate(zi))
         imm.append(M)
-    return np.stack(z0), np.stack(imm)
+        soft.append(d)
+    return np.stack(z0), np.stack(imm), np.stack(soft)
 
 
-def _u_cov(cov: np.ndarray | None, u0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The covariance of the bounded map's `u` from a covariance of theta (delta method),
-    `FALLBACK_U_VAR` where it is undefined, variances capped at `MAX_U_VAR`."""
-    K = u0.size
-    s = 1.0 / (1.0 + np.exp(-u0))
-    g = (hi - lo) * s * (1.0 - s)  # d theta / d u
-    g = np.where(g > 0, g, 1.0)
+def _softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The bounded map's softness `d` (Kf,) [SI]: `SOFTNESS` x the starting standard deviation
+    of each unknown, within [1e-9, 1] x its box width (the box width where undefined)."""
+    w = hi - lo
+    if cov is None:
+        return w
+    with np.errstate(invalid="ignore"):
+        sd = np.sqrt(np.diag(np.asarray(cov, float)))
+    ok = np.isfinite(sd) & (sd > 0)
+    return np.where(ok, np.clip(SOFTNESS * np.where(ok, sd, 0.0), 1e-9 * w, w), w)
+
+
+def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
+    """The covariance of the bounded map's `u` from a covariance of theta (delta method,
+    `slope` the map's d theta / du), `FALLBACK_U_VAR` where it is undefined, variances capped
+    at `MAX_U_VAR`."""
+    K = slope.size
+    g = np.where(slope > 0, slope, 1.0)
     if cov is None:
         return np.eye(K) * FALLBACK_U_VAR
     c = np.asarray(cov, float) / np.outer(g, g)
@@ -402,7 +425,7 @@ def sample(
     rows = tuple(int(s[0].shape[0]) for s in shapes)
     target = _Target(residual=residual, free=free, rows=rows, noise=noise,
                      forward=sampler.gradient == "forward")
-    z0, imm = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
+    z0, imm, soft = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
     # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
     # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
     # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
@@ -411,7 +434,8 @@ def sample(
         key = jax.random.key(int(seed))
     keys = jax.vmap(lambda i: jax.random.split(jax.random.fold_in(key, i), sampler.chains))(
         jnp.arange(U))
-    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(theta0))
+    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(soft),
+                  jnp.asarray(theta0))
     prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
     show = sys.stderr.isatty() if progress is None else bool(progress)
     t0 = time.perf_counter()
