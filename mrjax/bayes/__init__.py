@@ -16,6 +16,14 @@ condition of a per-test fit; the whole data set of a joint-law fit) and returns 
 is named `bayes` so that the function `mrjax.posterior` does not hide a module.
 """
 
+from ._laws import NOISE_RULE as NOISE_RULE
+from ._laws import LawBlocks as LawBlocks
+from ._laws import LawPosterior as LawPosterior
+from ._laws import coefficient_names as coefficient_names
+from ._laws import law_band as law_band
+from ._laws import law_posterior as law_posterior
+from ._laws import read_law_draws as read_law_draws
+from ._laws import with_coefficients as with_coefficients
 from ._noise import NOISE_MODELS as NOISE_MODELS
 from ._noise import block_loglik as block_loglik
 from ._pertest import DATA_CHOICES as DATA_CHOICES

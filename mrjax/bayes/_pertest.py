@@ -23,6 +23,7 @@ from jaxtyping import ArrayLike
 from .._errors import InputError
 from ..data import Batch, Condition, as_batch, fit_mask, swarm_view
 from ..fitting import FitResult
+from ..generalize import GeneralizedModel
 from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import residuals
 from ._noise import check_noise
@@ -300,7 +301,7 @@ def _check_start(result: FitResult, lo: np.ndarray, hi: np.ndarray) -> None:
 
 
 def posterior(
-    result: FitResult,
+    result: FitResult | GeneralizedModel,
     data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
     *,
     draws: int = 1000,
@@ -316,7 +317,9 @@ def posterior(
     sampler: Sampler | None = None,
     progress: bool | None = False,
 ) -> TestPosterior:
-    """The posterior of a per-test fit's parameters on every condition, by NUTS.
+    """The posterior of a per-test fit's parameters on every condition, or of the laws of a
+    `GeneralizedModel` over the current (:func:`mrjax.bayes.law_posterior`, which this calls
+    with the same options: it returns a :class:`mrjax.bayes.LawPosterior`), by NUTS.
 
     **Arguments:**
 
@@ -353,9 +356,20 @@ def posterior(
     :class:`mrjax.InputError` for impossible options (draws <= 0, unknown noise model or data
     choice, bad priors) and for data that are not the fit's conditions.
     """
+    if isinstance(result, GeneralizedModel):  # the joint-laws kind
+        from ._laws import law_posterior  # here: `_laws` builds on this module
+
+        if bounds is not None:
+            raise InputError("bounds do not apply to laws: their node values are kept within "
+                             "the model's bounds")
+        mask = None if transient is None else fit_mask(as_batch(data), transient)
+        return law_posterior(result, data, draws=draws, chains=chains, warmup=warmup,
+                             noise=noise, prior=prior, key=key, seed=seed,
+                             likelihood_data=likelihood_data, mask=mask, sampler=sampler,
+                             progress=progress)
     if not isinstance(result, FitResult):
-        raise InputError(f"posterior needs a mrjax.fit result (FitResult), got "
-                         f"{type(result).__name__}")
+        raise InputError(f"posterior needs a mrjax.fit result (FitResult) or laws over the "
+                         f"current (GeneralizedModel), got {type(result).__name__}")
     model = result.model
     # a dynamic model's residuals are one sequential integration: forward mode (see Sampler)
     sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup,
