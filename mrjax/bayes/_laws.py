@@ -258,6 +258,13 @@ class LawPosterior:
         pick = _spread(coef.shape[0], max_draws)
         return coef[pick], sigma[pick]
 
+    def law_values(self, current: ArrayLike, *, max_draws: int | None = 400) -> np.ndarray:
+        """(S, C, P) the parameters [SI] at currents `current` (C,) [A] of S <= `max_draws`
+        coefficient draws."""
+        coef = self.draws(max_draws)[0]
+        cur = np.atleast_1d(np.asarray(current, float))
+        return np.asarray(_params(self.model.lawset, jnp.asarray(coef), jnp.asarray(cur)))
+
     def generalized(self) -> GeneralizedModel:
         """The `GeneralizedModel` of the coefficients' posterior medians."""
         return with_coefficients(self.model, np.median(self.draws()[0], axis=0))
