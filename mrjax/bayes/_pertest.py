@@ -12,7 +12,7 @@ import dataclasses
 import os
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
@@ -30,6 +30,9 @@ from ._noise import check_noise
 from ._priors import at_bounds
 from ._result import Posterior
 from ._sampler import Sampler, sample
+
+if TYPE_CHECKING:  # `_laws` builds on this module
+    from ._laws import LawPosterior
 
 #: What the likelihood scores: the full `record`, or the swarm's `view` of it (every k-th
 #: sample, the first whole periods; see `mrjax.fitting.swarm_view`).
@@ -316,7 +319,7 @@ def posterior(
     transient: float | str | None = None,
     sampler: Sampler | None = None,
     progress: bool | None = False,
-) -> TestPosterior:
+) -> TestPosterior | LawPosterior:
     """The posterior of a per-test fit's parameters on every condition, or of the laws of a
     `GeneralizedModel` over the current (:func:`mrjax.bayes.law_posterior`, which this calls
     with the same options: it returns a :class:`mrjax.bayes.LawPosterior`), by NUTS.
@@ -349,7 +352,7 @@ def posterior(
     - `transient`: the fit's `transient` (the same samples are scored).
     - `progress`: a progress bar (None: only on a TTY).
 
-    **Returns:** a :class:`TestPosterior`.
+    **Returns:** a :class:`TestPosterior` (laws: a :class:`mrjax.bayes.LawPosterior`).
 
     Warns (`RuntimeWarning`) for a fit without polish, parameters at their bounds, and chains
     that did not converge (R-hat > 1.01, ESS < 400, divergent transitions). Raises

@@ -215,8 +215,7 @@ def plot_law_intervals(lp: Any, *, level: float = 0.95, n: int = 61, ncols: int 
         ax.grid(True, lw=0.4, alpha=0.5)
     for k in range(P, nrows * ncols):
         axes[k // ncols][k % ncols].set_visible(False)
-    handles, labs = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labs, loc="outside upper center", ncols=2, fontsize=8, frameon=False)
+    axes[0][0].legend(fontsize=7.5, frameon=False)
     fig.suptitle(f"{gm.model.name}: posterior of the laws ({lp.posterior.noise} noise; grey: "
                  "the records' currents)", fontsize=10)
     return fig
