@@ -16,14 +16,19 @@ matrix.
 
 **Predictive band on a new record.** Each kept draw gives the coefficients, hence the
 parameters at the record's current and its force (the model through the one integrator),
-plus Gaussian noise. A record the laws were sampled on keeps its own noise draws. A new
-record's noise level is not sampled; the rule (:data:`NOISE_RULE`): each draw's noise levels
-relative to the force scale (max |F| measured) of its records are pooled (root mean square
-over the records), and scaled by the new record's *predicted* force scale (max |F| of the
-median laws' force on it: no measured force needed). Why relative: on real records the noise
-is model error, which grows with the force (UTFSM: about proportional to max |F| over 0-1 A,
-`benchmarks/posterior.md`); a pooled absolute level would overstate the noise of a weak
-record and understate a strong one's.
+plus Gaussian noise. The noise level of a measurement is the scale of the residuals: each
+fitted record's RMS residual [N] at the posterior-median laws (`LawPosterior.residual_rms`).
+Not the sampled noise level: with `noise="ar1"` on real records rho -> 1 and the marginal
+sigma is fixed by little more than each record's first sample (UTFSM, tanh laws: rho =
+0.99991, sigma up to 5 x max |F| while the residuals' RMS is 0.05-0.3 x max |F|: a band of
+that sigma covers everything); with `"iid"` the two agree. A fitted record (same label and
+current) keeps its own level; a new record's is not known, and the rule (:data:`NOISE_RULE`)
+pools the fitted records' levels relative to their force scale (max |F| measured; root mean
+square over the records) and scales the result by the new record's *predicted* force scale
+(max |F| of the median laws' force on it: no measured force needed). Why relative: on real
+records the noise is model error, which grows with the force (UTFSM, tanh laws: RMS residual
+20 N at 170 N peak force, 250-690 N at 1,400-1,560 N); a pooled absolute level would
+overstate the noise of a weak record and understate a strong one's.
 """
 
 from __future__ import annotations
@@ -63,8 +68,9 @@ from ._result import RHO, SIGMA, Posterior, arviz
 from ._sampler import Sampler, sample
 
 #: How a new record's noise level is chosen (see the module notes).
-NOISE_RULE = ("pooled relative: each draw's RMS over the fitted records of noise_sigma / "
-              "max|F measured|, times the new record's max|F| of the median laws")
+NOISE_RULE = ("pooled relative: the root mean square over the fitted records of their RMS "
+              "residual at the median laws / max|F measured|, times the new record's max|F| "
+              "of the median laws")
 
 
 class LawBlocks(eqx.Module):
@@ -158,8 +164,9 @@ class LawPosterior:
     one unit `"laws"`, variables `name[m]` the coefficient of $i^m$, noise levels per
     record); `nodes` the sampled unknowns' draws (node values, with their box); `model` the
     `GeneralizedModel` the chains started from (its laws); `records` (R,) the labels of the
-    records in the likelihood, `currents` (R,) [A] and `force_scale` (R,) [N] (max |F|
-    measured) of each; `data` (`"record"` or `"view"`) what the likelihood scored;
+    records in the likelihood, `currents` (R,) [A], `force_scale` (R,) [N] (max |F|
+    measured) and `residual_rms` (R,) [N] (at the posterior-median laws: the noise level of
+    the predictive band) of each; `data` (`"record"` or `"view"`) what the likelihood scored;
     `n_scored` (R,) samples per record.
     """
 
@@ -169,6 +176,7 @@ class LawPosterior:
     records: tuple[str, ...]
     currents: np.ndarray
     force_scale: np.ndarray
+    residual_rms: np.ndarray
     data: str
     n_scored: np.ndarray
 
@@ -182,7 +190,7 @@ class LawPosterior:
         """The draws as `arviz.InferenceData`: group `posterior` with one variable per model
         parameter, dims `chain`, `draw`, `<name>_coefficient` (the coefficient of $i^m$),
         `noise_sigma` (dim `record`) [N] and `noise_rho`; `sample_stats`; `constant_data` with
-        each record's `current` [A] and `force_scale` [N] (the new-record noise rule)."""
+        each record's `current` [A], `force_scale` and `residual_rms` [N] (the band's noise)."""
         az = arviz()
         post, dims, coords = {}, {}, {"record": list(self.records)}
         th = self.posterior.theta[0]
@@ -199,8 +207,9 @@ class LawPosterior:
         stats = {"diverging": p.diverging[0], "n_steps": p.n_steps[0],
                  "acceptance_rate": p.accept[0], "lp": p.lp[0]}
         const = {"current": np.asarray(self.currents, float),
-                 "force_scale": np.asarray(self.force_scale, float)}
-        dims.update(current=["record"], force_scale=["record"])
+                 "force_scale": np.asarray(self.force_scale, float),
+                 "residual_rms": np.asarray(self.residual_rms, float)}
+        dims.update(current=["record"], force_scale=["record"], residual_rms=["record"])
         gm = self.model
         attrs = {"kind": "laws", "model": gm.model.name, "noise": p.noise, "seed": p.seed,
                  "sampler": "blackjax NUTS", "warmup": int(p.sampler.warmup),
@@ -230,6 +239,7 @@ class LawPosterior:
                     records=list(self.records),
                     currents_A=[float(c) for c in self.currents],
                     force_scale_N=[float(s) for s in self.force_scale],
+                    residual_rms_N=[float(s) for s in self.residual_rms],
                     scored_samples=[int(n) for n in self.n_scored], noise_rule=NOISE_RULE)
 
     def to_csv(self) -> str:
@@ -285,9 +295,9 @@ class LawPosterior:
         force per record."""
         if n_draws < 1:
             raise InputError("n_draws must be positive")
-        coef, sigma = self.draws(n_draws)
-        return law_band(self.model, coef, sigma, self.records, self.currents, self.force_scale,
-                        data, level=level, noise_draws=noise_draws, seed=seed)
+        return law_band(self.model, self.draws(n_draws)[0], self.residual_rms, self.records,
+                        self.currents, self.force_scale, data, level=level,
+                        noise_draws=noise_draws, seed=seed)
 
     def __repr__(self) -> str:
         return (f"LawPosterior(model={self.model.model.name!r}, records={len(self.records)}, "
@@ -314,7 +324,7 @@ def with_coefficients(gm: GeneralizedModel, coef: ArrayLike) -> GeneralizedModel
 def law_band(
     gm: GeneralizedModel,
     coef: ArrayLike,
-    sigma: ArrayLike,
+    noise: ArrayLike,
     records: Sequence[str],
     currents: ArrayLike,
     force_scale: ArrayLike,
@@ -327,12 +337,12 @@ def law_band(
     """The posterior predictive force band of laws on records `data`, each at its constant
     current: every draw's coefficients -> parameters at the record's current -> force, plus
     Gaussian noise (`mrjax.bayes.predictive_band`). A record of the likelihood (same label
-    and current) keeps its own noise draws; any other gets the rule :data:`NOISE_RULE` (see
+    and current) keeps its own noise level; any other gets the rule :data:`NOISE_RULE` (see
     the module notes).
 
     **Arguments:** `gm` the laws' form (kinds, sizes, scales); `coef` (S, V) coefficient
-    draws; `sigma` (S, R) [N] the noise draws of the R `records` at `currents` (R,) [A] with
-    force scales `force_scale` (R,) [N]; `data` the records to predict; `level` in (0, 1);
+    draws; `noise` (R,) [N] the noise levels (RMS residuals) of the R `records` at `currents`
+    (R,) [A] with force scales `force_scale` (R,) [N]; `data` the records to predict; `level` in (0, 1);
     `noise_draws` per draw; `seed` of the noise.
 
     **Returns:** a :class:`mrjax.bayes.PredictiveBand`.
@@ -340,13 +350,14 @@ def law_band(
     Raises :class:`mrjax.InputError` for a record without a constant current, a bad level
     or shapes that do not match.
     """
-    coef, sigma = np.asarray(coef, float), np.asarray(sigma, float)
+    coef, noise = np.asarray(coef, float), np.asarray(noise, float)
     scale = np.asarray(force_scale, float)
     fitted_cur = np.asarray(currents, float)
-    if coef.ndim != 2 or sigma.ndim != 2 or sigma.shape != (coef.shape[0], len(records)) \
-            or scale.shape != (len(records),) or fitted_cur.shape != scale.shape:
-        raise InputError("law draws do not match: coefficients (S, V), noise (S, R) and R "
-                         "records with their currents and force scales")
+    R = len(records)
+    if coef.ndim != 2 or noise.shape != (R,) or scale.shape != (R,) \
+            or fitted_cur.shape != (R,):
+        raise InputError("law draws do not match: coefficients (S, V) and R records with "
+                         "their noise levels, currents and force scales (R,)")
     batch = as_batch(data)
     cur = _constant_currents(batch)
     lo, hi = gm.current_range
@@ -358,7 +369,7 @@ def law_band(
     theta = np.moveaxis(np.asarray(_params(gm.lawset, jnp.asarray(coef), jnp.asarray(cur))),
                         0, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.sqrt(np.mean((sigma / np.where(scale > 0, scale, np.nan)) ** 2, axis=1))
+        rel = float(np.sqrt(np.nanmean((noise / np.where(scale > 0, scale, np.nan)) ** 2)))
     pred = with_coefficients(gm, np.median(coef, axis=0)).predict(batch)
     m = np.asarray(batch.mask, bool)
     pred_scale = np.max(np.where(m, np.abs(pred), 0.0), axis=1)
@@ -367,7 +378,7 @@ def law_band(
     for c, lab in enumerate(batch.labels):
         r = pos.get(lab)
         own = r is not None and abs(fitted_cur[r] - cur[c]) <= 1e-9
-        sig[c] = sigma[:, r] if own else rel * pred_scale[c]
+        sig[c] = noise[r] if own else rel * pred_scale[c]
     return predictive_band(gm.model, theta, sig, batch.labels, batch, level=level,
                            noise_draws=noise_draws, seed=seed)
 
@@ -375,8 +386,9 @@ def law_band(
 def read_law_draws(path: str | os.PathLike, gm: GeneralizedModel, *, max_draws: int = 200
                    ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], np.ndarray, np.ndarray]:
     """Law draws from a `posterior.nc` of a laws' posterior (`mrjax fit --generalize
-    ... --posterior`): `(coef (S, V), sigma (S, R), records (R,), currents (R,) [A],
-    force_scale (R,) [N])`, S <= `max_draws` spread over chains and draws.
+    ... --posterior`): `(coef (S, V), residual_rms (R,) [N], records (R,), currents (R,) [A],
+    force_scale (R,) [N])` (the arguments of :func:`law_band`), S <= `max_draws` spread over
+    chains and draws.
 
     Raises :class:`mrjax.InputError` for a file that is not a posterior of these laws."""
     import xarray as xr
@@ -394,15 +406,14 @@ def read_law_draws(path: str | os.PathLike, gm: GeneralizedModel, *, max_draws: 
                 v = ds[n].transpose("chain", "draw", dim).values
                 parts.append(np.asarray(v, float).reshape(-1, k))
             coef = np.concatenate(parts, axis=1)
-            sigma = np.asarray(ds[SIGMA].transpose("chain", "draw", "record").values, float)
-            sigma = sigma.reshape(coef.shape[0], -1)
             records = tuple(str(v) for v in ds["record"].values)
             currents = np.asarray(cd["current"].values, float)
             scale = np.asarray(cd["force_scale"].values, float)
+            noise = np.asarray(cd["residual_rms"].values, float)
     except (OSError, ValueError, KeyError) as e:
         raise InputError(f"{path}: cannot read the laws' posterior ({e})") from None
     pick = _spread(coef.shape[0], max_draws)
-    return coef[pick], sigma[pick], records, currents, scale
+    return coef[pick], noise, records, currents, scale
 
 
 def law_posterior(
@@ -511,6 +522,9 @@ def law_posterior(
         param_units=cunits)
     for line in cpost.problems():
         warnings.warn(line, RuntimeWarning, stacklevel=2)
+    # the band's noise levels: the residuals' RMS of every record at the median laws
+    med = with_coefficients(gm, np.median(coef.reshape(-1, V), axis=0))
+    rms = np.asarray(med.evaluate(batch, mask=check_mask(batch, mask))["rms"], float)
     return LawPosterior(posterior=cpost, nodes=post, model=gm, records=labels,
-                        currents=cur[order], force_scale=scale[order], data=choice,
-                        n_scored=m.sum(axis=1)[order])
+                        currents=cur[order], force_scale=scale[order],
+                        residual_rms=rms[order], data=choice, n_scored=m.sum(axis=1)[order])
