@@ -10,6 +10,17 @@ post.idata                   # arviz.InferenceData (dims chain, draw, condition)
 band = post.predict_band(batch)   # posterior predictive force band and its coverage
 ```
 
+On laws over the current (`mrjax.generalize.generalize(res, batch, method="joint")`), the
+same call samples the law coefficients (one unit: the whole data set, one noise level per
+record) and returns a :class:`LawPosterior`, whose `predict_band` predicts records at new
+currents:
+
+```python
+gm = mrjax.generalize.generalize(res, batch, method="joint")
+lp = mrjax.posterior(gm, batch, noise="ar1")      # a LawPosterior
+lp.predict_band(held_out).coverage                # per record, at unseen currents
+```
+
 The core, :func:`sample`, takes a residual function of one unit's unknowns in a box (one
 condition of a per-test fit; the whole data set of a joint-law fit) and returns a
 :class:`Posterior`; :func:`posterior` is the per-test kind on a `mrjax.fit` result. The package
