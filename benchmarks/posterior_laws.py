@@ -131,9 +131,10 @@ def render(doc: dict[str, Any]) -> str:
         "--generalize joint --posterior --noise N`), then `mrjax predict --fit DIR --band 95` "
         "on the 12 tests at 0.25 and 0.75 A (held out) and on the 18 fitted ones (in-sample). "
         "Coverage: share of the measured force samples inside the 95 % predictive band "
-        "(pooled over the records; a calibrated band covers about 95 %). A new record's noise "
-        "level: the fitted records' noise relative to their max |F|, pooled per draw, times "
-        "the new record's predicted max |F| (`mrjax.bayes.NOISE_RULE`). Cold processes, 2 "
+        "(pooled over the records; a calibrated band covers about 95 %). The band's noise level: "
+        "a fitted record's RMS residual at the posterior-median laws; a new record's, those "
+        "relative to max |F|, pooled (root mean square), times its predicted max |F| "
+        "(`mrjax.bayes.NOISE_RULE`). Cold processes, 2 "
         "shared cores; `python -m benchmarks.posterior_laws`.", "",
         "| model | noise | likelihood | chains x draws (+warmup) | held-out coverage % | "
         "per record % | in-sample coverage % | R-hat max | ESS min bulk / tail | divergences "
