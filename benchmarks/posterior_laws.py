@@ -111,7 +111,8 @@ def render(doc: dict[str, Any]) -> str:
         r = doc[key]
         d = r["diagnostics"]
         rows.append(
-            f"| {r['model']} | {r['noise']} | {r['likelihood_data']} | {r['chains']} x "
+            f"| {r['model']} | {r['noise']} | {r['likelihood_data']} | "
+            f"{r.get('band_rule', 'by motion')} | {r['chains']} x "
             f"{r['draws']} (+{r['warmup']}) | {100 * r['heldout']['coverage_pooled']:.1f} | "
             f"{100 * min(e['coverage'] for e in r['heldout']['records']):.1f} - "
             f"{100 * max(e['coverage'] for e in r['heldout']['records']):.1f} | "
@@ -124,7 +125,7 @@ def render(doc: dict[str, Any]) -> str:
         r = doc[key]
         cells = ", ".join(f"{e['label']} {100 * e['coverage']:.0f} %"
                           for e in r["heldout"]["records"])
-        per.append(f"- {r['model']} ({r['noise']}): {cells}")
+        per.append(f"- {r['model']} ({r['noise']}, {r.get('band_rule', 'by motion')}): {cells}")
     return "\n".join([
         SECTION, "",
         "Laws from the 18 tests at 0, 0.5 and 1 A (`mrjax fit <those files> --model M "
@@ -133,13 +134,14 @@ def render(doc: dict[str, Any]) -> str:
         "Coverage: share of the measured force samples inside the 95 % predictive band "
         "(pooled over the records; a calibrated band covers about 95 %). The band's noise level: "
         "a fitted record's RMS residual at the posterior-median laws; a new record's, those "
-        "relative to max |F|, pooled (root mean square), times its predicted max |F| "
-        "(`mrjax.bayes.NOISE_RULE`). Cold processes, 2 "
+        "relative to max |F|, pooled (root mean square) over the fitted records of its motion "
+        "(same frequency and amplitude; the rule of `mrjax.bayes.NOISE_RULE`) or, in the "
+        "'pooled' row (the first rule), over all of them, times its predicted max |F|. Cold processes, 2 "
         "shared cores; `python -m benchmarks.posterior_laws`.", "",
-        "| model | noise | likelihood | chains x draws (+warmup) | held-out coverage % | "
-        "per record % | in-sample coverage % | R-hat max | ESS min bulk / tail | divergences "
-        "| leapfrog/draw | sampler s | fit + laws + posterior s | load |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "",
+        "| model | noise | likelihood | new record's noise | chains x draws (+warmup) | "
+        "held-out coverage % | per record % | in-sample coverage % | R-hat max | "
+        "ESS min bulk / tail | divergences | leapfrog/draw | sampler s | fit + laws + posterior s | load |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|", *rows, "",
         "Held-out coverage per record:", "", *per, "", *([] if any(
             k.startswith("modified_bouc_wen") for k in doc) else MBW_NOTE), ""])
 

@@ -128,7 +128,8 @@ def test_law_posterior_files(laws, tmp_path):
     assert post["noise_sigma"].dims == ("chain", "draw", "record")
     path = tmp_path / "posterior.nc"
     path.write_bytes(lp.netcdf_bytes())
-    coef, noise, rec, cur, scale = read_law_draws(path, gm, max_draws=10 ** 6)
+    coef, noise, rec, cur, scale, motion = read_law_draws(path, gm, max_draws=10 ** 6)
+    np.testing.assert_array_equal(motion, lp.motion)
     c0, s0 = lp.draws()
     np.testing.assert_array_equal(coef, c0)
     np.testing.assert_array_equal(noise, lp.residual_rms)

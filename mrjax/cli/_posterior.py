@@ -115,7 +115,7 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
         block.setdefault("model_source", doc.get("model_source"))
         gm = GeneralizedModel.from_dict(block, model=args.model)
         model = gm.model
-        coef, noise, records, currents, scale = read_law_draws(nc, gm)
+        coef, noise, records, currents, scale, motion = read_law_draws(nc, gm)
         n_used, what = coef.shape[0], f"laws of {len(records)} record(s)"
     else:
         model = (get(args.model) if args.model else
@@ -127,7 +127,7 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
     say(f"predicting {batch.n_conditions} record(s) with the posterior of {what}, "
         f"{args.band:g} % band...")
     if laws:
-        band = law_band(gm, coef, noise, records, currents, scale, batch,
+        band = law_band(gm, coef, noise, records, currents, scale, batch, motion=motion,
                         level=args.band / 100.0)
     else:
         band = predictive_band(model, theta, sigma, labels, batch, level=args.band / 100.0)
