@@ -198,3 +198,24 @@ def test_cli_law_posterior_and_held_out_band(laws, tmp_path):
     assert code == 2 and "--prior applies to per-test parameters" in one_error_line(err)
     assert not (tmp_path / "x").exists()
 
+
+
+def test_new_record_noise_by_motion(laws):
+    """A new record's noise level comes from the fitted records of its motion (relative to
+    their peak force), scaled by its predicted peak force: fitted noise 1 % of max |F| on one
+    motion and 20 % on the other gives a band of about +-1.96 x 1 % of max |F| on a new
+    current of the first motion."""
+    from mrjax.bayes import law_band
+
+    batch, _, gm, lp = laws
+    rel = np.where(lp.motion[:, 0] == MOTIONS[0][0], 0.01, 0.2)
+    new, _ = records((0.375,), 4, motions=MOTIONS[:1])
+    band = law_band(gm, lp.draws(100)[0], rel * lp.force_scale, lp.records, lp.currents,
+                    lp.force_scale, new, motion=lp.motion, noise_draws=16)
+    m = band.mask[0]
+    half = np.median((band.upper - band.lower)[0][m]) / 2
+    peak = np.max(np.abs(band.median[0][m]))
+    assert half / (1.96 * 0.01 * peak) == pytest.approx(1.0, rel=0.2)
+    pooled = law_band(gm, lp.draws(100)[0], rel * lp.force_scale, lp.records, lp.currents,
+                      lp.force_scale, new, noise_draws=16)  # no motions: every record pooled
+    assert np.median((pooled.upper - pooled.lower)[0][m]) / 2 > 5 * half
