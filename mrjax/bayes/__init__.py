@@ -10,12 +10,31 @@ post.idata                   # arviz.InferenceData (dims chain, draw, condition)
 band = post.predict_band(batch)   # posterior predictive force band and its coverage
 ```
 
+On laws over the current (`mrjax.generalize.generalize(res, batch, method="joint")`), the
+same call samples the law coefficients (one unit: the whole data set, one noise level per
+record) and returns a :class:`LawPosterior`, whose `predict_band` predicts records at new
+currents:
+
+```python
+gm = mrjax.generalize.generalize(res, batch, method="joint")
+lp = mrjax.posterior(gm, batch, noise="ar1")      # a LawPosterior
+lp.predict_band(held_out).coverage                # per record, at unseen currents
+```
+
 The core, :func:`sample`, takes a residual function of one unit's unknowns in a box (one
 condition of a per-test fit; the whole data set of a joint-law fit) and returns a
 :class:`Posterior`; :func:`posterior` is the per-test kind on a `mrjax.fit` result. The package
 is named `bayes` so that the function `mrjax.posterior` does not hide a module.
 """
 
+from ._laws import NOISE_RULE as NOISE_RULE
+from ._laws import LawBlocks as LawBlocks
+from ._laws import LawPosterior as LawPosterior
+from ._laws import coefficient_names as coefficient_names
+from ._laws import law_band as law_band
+from ._laws import law_posterior as law_posterior
+from ._laws import read_law_draws as read_law_draws
+from ._laws import with_coefficients as with_coefficients
 from ._noise import NOISE_MODELS as NOISE_MODELS
 from ._noise import block_loglik as block_loglik
 from ._pertest import DATA_CHOICES as DATA_CHOICES

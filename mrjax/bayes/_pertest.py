@@ -12,7 +12,7 @@ import dataclasses
 import os
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
@@ -23,12 +23,16 @@ from jaxtyping import ArrayLike
 from .._errors import InputError
 from ..data import Batch, Condition, as_batch, fit_mask, swarm_view
 from ..fitting import FitResult
+from ..generalize import GeneralizedModel
 from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import residuals
 from ._noise import check_noise
 from ._priors import at_bounds
 from ._result import Posterior
 from ._sampler import Sampler, sample
+
+if TYPE_CHECKING:  # `_laws` builds on this module
+    from ._laws import LawPosterior
 
 #: What the likelihood scores: the full `record`, or the swarm's `view` of it (every k-th
 #: sample, the first whole periods; see `mrjax.fitting.swarm_view`).
@@ -300,7 +304,7 @@ def _check_start(result: FitResult, lo: np.ndarray, hi: np.ndarray) -> None:
 
 
 def posterior(
-    result: FitResult,
+    result: FitResult | GeneralizedModel,
     data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
     *,
     draws: int = 1000,
@@ -315,8 +319,10 @@ def posterior(
     transient: float | str | None = None,
     sampler: Sampler | None = None,
     progress: bool | None = False,
-) -> TestPosterior:
-    """The posterior of a per-test fit's parameters on every condition, by NUTS.
+) -> TestPosterior | LawPosterior:
+    """The posterior of a per-test fit's parameters on every condition, or of the laws of a
+    `GeneralizedModel` over the current (:func:`mrjax.bayes.law_posterior`, which this calls
+    with the same options: it returns a :class:`mrjax.bayes.LawPosterior`), by NUTS.
 
     **Arguments:**
 
@@ -346,16 +352,27 @@ def posterior(
     - `transient`: the fit's `transient` (the same samples are scored).
     - `progress`: a progress bar (None: only on a TTY).
 
-    **Returns:** a :class:`TestPosterior`.
+    **Returns:** a :class:`TestPosterior` (laws: a :class:`mrjax.bayes.LawPosterior`).
 
     Warns (`RuntimeWarning`) for a fit without polish, parameters at their bounds, and chains
     that did not converge (R-hat > 1.01, ESS < 400, divergent transitions). Raises
     :class:`mrjax.InputError` for impossible options (draws <= 0, unknown noise model or data
     choice, bad priors) and for data that are not the fit's conditions.
     """
+    if isinstance(result, GeneralizedModel):  # the joint-laws kind
+        from ._laws import law_posterior  # here: `_laws` builds on this module
+
+        if bounds is not None:
+            raise InputError("bounds do not apply to laws: their node values are kept within "
+                             "the model's bounds")
+        mask = None if transient is None else fit_mask(as_batch(data), transient)
+        return law_posterior(result, data, draws=draws, chains=chains, warmup=warmup,
+                             noise=noise, prior=prior, key=key, seed=seed,
+                             likelihood_data=likelihood_data, mask=mask, sampler=sampler,
+                             progress=progress)
     if not isinstance(result, FitResult):
-        raise InputError(f"posterior needs a mrjax.fit result (FitResult), got "
-                         f"{type(result).__name__}")
+        raise InputError(f"posterior needs a mrjax.fit result (FitResult) or laws over the "
+                         f"current (GeneralizedModel), got {type(result).__name__}")
     model = result.model
     # a dynamic model's residuals are one sequential integration: forward mode (see Sampler)
     sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup,

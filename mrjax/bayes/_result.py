@@ -189,7 +189,10 @@ class Posterior:
                         row[s] = float(a[i] if a.ndim == 1 else a[i, k])
                     row["divergences"] = int(div[i])
                     rows.append(row)
-        return pd.DataFrame(rows)
+        df = pd.DataFrame(rows)
+        if "record" in df.columns:  # beside the unit, also where the first rows have none
+            df.insert(2, "record", df.pop("record").fillna(""))
+        return df
 
     def diagnostics(self) -> dict[str, Any]:
         """Convergence figures: worst R-hat, smallest bulk / tail ESS over every sampled

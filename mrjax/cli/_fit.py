@@ -130,7 +130,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     if post is not None:
         tp, post_files = run_posterior(post, result, batch, bounds=bounds,
                                        transient=args.transient, seed=args.seed,
-                                       plots=not args.no_plots)
+                                       plots=not args.no_plots, laws=gm)
     files = {"fit.json": result.to_json(generalized=gm, posterior=tp).encode(),
              "fit.csv": result.to_csv().encode(), **post_files}
     if not args.no_plots:

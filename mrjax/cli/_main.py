@@ -124,9 +124,10 @@ def _predict_parser(sub, common) -> None:
                    help="where the fitted model is, when it is not a model of this installation "
                    "and fit.json's record of its file or module no longer finds it")
     p.add_argument("--band", type=float, metavar="PCT",
-                   help="the posterior predictive force band of a per-test fit written with "
-                   "`mrjax fit --posterior` (its posterior.nc) on records of the same tests, "
-                   "e.g. 95, with its coverage of the measured force")
+                   help="the posterior predictive force band of a fit written with "
+                   "`mrjax fit --posterior` (its posterior.nc), e.g. 95, with its coverage of "
+                   "the measured force: a per-test fit on records of the same tests, laws "
+                   "(`--generalize ... --posterior`) on records at any current")
     add_output_options(p, "predict")
     add_data_options(p)
     p.set_defaults(run=("_predict", "run"))

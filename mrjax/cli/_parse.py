@@ -313,6 +313,7 @@ def add_posterior_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("posterior (Bayesian identification by NUTS)")
     g.add_argument("--posterior", action="store_true",
                    help="after the fit, sample the posterior of every test's parameters "
+                   "(with --generalize: of the laws' coefficients) "
                    "(NUTS, blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
                    "entry in fit.json and figures")
     g.add_argument("--draws", type=int, metavar="N",

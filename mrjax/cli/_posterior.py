@@ -33,6 +33,9 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[s
     if args.posterior_data is not None and args.posterior_data not in DATA_CHOICES:
         raise InputError(f"--posterior-data must be one of {', '.join(DATA_CHOICES)}, got "
                          f"{args.posterior_data!r}")
+    if getattr(args, "generalize", None) and args.prior:
+        raise InputError("--prior applies to per-test parameters; the posterior of the laws "
+                         "(--generalize) is flat on their node values")
     prior = {}
     for item in args.prior or ():
         name, sep, spec = item.partition("=")
@@ -44,12 +47,26 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[s
 
 
 def run_posterior(settings: dict[str, Any], result: Any, batch: Any, *, bounds: Any,
-                  transient: Any, seed: int, plots: bool) -> tuple[Any, dict[str, bytes]]:
-    """The posterior of a per-test fit and its files: `posterior.nc`, `posterior.csv` and (with
-    `plots`) the figures of `mrjax.report.posterior_figures`."""
+                  transient: Any, seed: int, plots: bool, laws: Any = None
+                  ) -> tuple[Any, dict[str, bytes]]:
+    """The posterior of a per-test fit, or with `laws` (a `GeneralizedModel` of `--generalize`)
+    of its laws, and its files: `posterior.nc`, `posterior.csv` and (with `plots`) the
+    figures of `mrjax.report.posterior_figures` (laws: `mrjax.report.law_posterior_figures`)."""
     from ..bayes import posterior
 
     how = settings["likelihood_data"] or ("view" if result.model.dynamic else "record")
+    if laws is not None:
+        say(f"sampling the posterior of the laws ({settings['chains']} chains x "
+            f"{settings['draws']} draws, {settings['noise']} noise, {how})...")
+        kw = {k: v for k, v in settings.items() if k != "prior"}
+        lp = posterior(laws, batch, seed=seed, transient=transient, progress=None, **kw)
+        files = {"posterior.nc": lp.netcdf_bytes(), "posterior.csv": lp.to_csv().encode()}
+        if plots:
+            use_agg()
+            from .. import report as rp  # imported here: matplotlib only when figures are drawn
+
+            files.update(rp.law_posterior_figures(lp, lp.predict_band(batch)))
+        return lp, files
     say(f"sampling the posterior ({settings['chains']} chains x {settings['draws']} draws, "
         f"{settings['noise']} noise, {how})...")
     tp = posterior(result, batch, seed=seed, bounds=bounds, transient=transient, progress=None,
@@ -66,8 +83,9 @@ def run_posterior(settings: dict[str, Any], result: Any, batch: Any, *, bounds: 
 
 def run_band(args: argparse.Namespace, out: Any) -> int:
     """`mrjax predict --fit DIR --band PCT`: the posterior predictive band of a per-test fit
-    (its `posterior.nc`) on records of the same tests, with the coverage of the measured
-    force; writes predict.json, predict.csv and predict_band.png."""
+    (its `posterior.nc`) on records of the same tests, or of a laws' posterior
+    (`--generalize ... --posterior`) on records at any current, with the coverage of the
+    measured force; writes predict.json, predict.csv and predict_band.png."""
     from pathlib import Path
 
     import numpy as np
@@ -75,7 +93,8 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
     from .. import __version__
     from .._io import json_bytes
     from .._tables import format_table
-    from ..bayes import predictive_band, read_draws
+    from ..bayes import NOISE_RULE, law_band, predictive_band, read_draws, read_law_draws
+    from ..generalize import GeneralizedModel
     from ..models import from_source, get
     from ._common import data_spec, load_batch, read_fit_json, say_estimates
 
@@ -88,16 +107,37 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
     if not nc.is_file():
         raise InputError(f"{args.fit}: no posterior.nc beside the fit.json; run `mrjax fit "
                          f"DATA... --model NAME --posterior` first")
-    model = (get(args.model) if args.model else
-             from_source(str(doc.get("model")), doc.get("model_source")))
-    labels, theta, sigma = read_draws(nc, model.param_names)
+    laws = (doc.get("posterior") or {}).get("kind") == "laws"
+    if laws:  # the laws over the current, on records at any current
+        if "generalized" not in doc:
+            raise InputError(f"{args.fit}: a posterior of laws without its 'generalized' block")
+        block = dict(doc["generalized"])
+        block.setdefault("model_source", doc.get("model_source"))
+        gm = GeneralizedModel.from_dict(block, model=args.model)
+        model = gm.model
+        coef, noise, records, currents, scale, motion = read_law_draws(nc, gm)
+        n_used, what = coef.shape[0], f"laws of {len(records)} record(s)"
+    else:
+        model = (get(args.model) if args.model else
+                 from_source(str(doc.get("model")), doc.get("model_source")))
+        labels, theta, sigma = read_draws(nc, model.param_names)
+        n_used, what = theta.shape[1], f"{len(labels)} test(s)"
     batch = load_batch(args.files, data_spec(args))
     say_estimates(batch)
-    say(f"predicting {batch.n_conditions} record(s) with the posterior of {len(labels)} "
-        f"test(s), {args.band:g} % band...")
-    band = predictive_band(model, theta, sigma, labels, batch, level=args.band / 100.0)
+    say(f"predicting {batch.n_conditions} record(s) with the posterior of {what}, "
+        f"{args.band:g} % band...")
+    if laws:
+        band = law_band(gm, coef, noise, records, currents, scale, batch, motion=motion,
+                        level=args.band / 100.0)
+    else:
+        band = predictive_band(model, theta, sigma, labels, batch, level=args.band / 100.0)
+    pooled = float(np.sum(band.coverage * band.mask.sum(axis=1)) / max(band.mask.sum(), 1))
     report = {"fit": str(args.fit), "model": model.name, "mrjax_version": __version__,
-              "band": band.to_dict(), "draws_used": int(theta.shape[1])}
+              "kind": "laws" if laws else "per-test", "band": band.to_dict(),
+              "coverage_mean": float(np.mean(band.coverage)), "coverage_pooled": pooled,
+              "draws_used": int(n_used)}
+    if laws:
+        report["noise_rule"] = NOISE_RULE
     rows = [[lab, 100 * c, 100 * fc, 100 * e] for lab, c, fc, e in
             zip(band.labels, band.coverage, band.force_coverage, band.nrmse)]
     csv = "label,coverage,force_coverage,nrmse\n" + "".join(
@@ -113,7 +153,7 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
     out.write(files)
     print(format_table(rows, ["record", f"in {args.band:g}% band %", "in force band %",
                               "NRMSE%"], floatfmt=["", ".1f", ".1f", ".2f"]))
-    print(f"{model.name} posterior: the {args.band:g} % band covers "
-          f"{100 * float(np.mean(band.coverage)):.1f} % of the measured force (mean over "
-          f"{len(rows)} record(s))")
+    print(f"{model.name} posterior{' of the laws' if laws else ''}: the {args.band:g} % band "
+          f"covers {100 * float(np.mean(band.coverage)):.1f} % of the measured force (mean "
+          f"over {len(rows)} record(s); {100 * pooled:.1f} % of all samples)")
     return 0

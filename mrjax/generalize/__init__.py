@@ -95,6 +95,10 @@ one-storey structure with the damper driven by it under a skyhook law.
 from ._coding import DELTA_RANGE as DELTA_RANGE
 from ._coding import LOG_FLOOR as LOG_FLOOR
 from ._coding import Q_RANGE as Q_RANGE
+from ._coding import Layout as Layout
+from ._coding import build_objective as build_objective
+from ._coding import joint_residual_blocks as joint_residual_blocks
+from ._coding import node_box as node_box
 from ._forms import AUTO_FORMS as AUTO_FORMS
 from ._forms import LawForms as LawForms
 from ._forms import choose_forms as choose_forms
@@ -118,6 +122,7 @@ from ._laws import canonical_z_scale as canonical_z_scale
 from ._laws import default_degrees as default_degrees
 from ._laws import group_currents as group_currents
 from ._laws import lag_current as lag_current
+from ._laws import nodes as nodes
 from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
 from ._model import LawUncertainty as LawUncertainty
@@ -127,3 +132,5 @@ from ._records import random_command as random_command
 from ._records import random_motion as random_motion
 from ._records import sine_record as sine_record
 from ._records import spencer_1997 as spencer_1997
+from ._rows import make_rows as make_rows
+from ._rows import record_order as record_order

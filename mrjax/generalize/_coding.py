@@ -304,16 +304,25 @@ def objective_at(obj: JointObjective, position, data):
     return obj.solve(position, data)
 
 
-def joint_residuals(model: AbstractModel, coding: Coding, nu, eta, data: tuple[Rows, ...]):
-    """Masked residuals [N] of the laws of node values `nu` (and lag `eta`) on every record,
-    flattened (zero on unscored samples)."""
+def joint_residual_blocks(model: AbstractModel, coding: Coding, nu, eta,
+                          data: tuple[Rows, ...]) -> tuple[tuple[Array, Array], ...]:
+    """Masked residuals [N] of the laws of node values `nu` (and lag `eta`) on every record:
+    per group of rows `(r (R, T), mask (R, T))`, zero on unscored samples (the blocks of
+    `mrjax.bayes.sample`, one noise level per row)."""
     laws = coding.lawset(nu)
     out = []
     for rows in data:
         theta = laws(rows.signal(eta, coding.use_lag))
         pred = jax.vmap(model.force)(theta, rows.x, rows.xdot, rows.dt)
-        out.append(jnp.where(rows.mask, pred - rows.force, 0.0).ravel())
-    return jnp.concatenate(out)
+        out.append((jnp.where(rows.mask, pred - rows.force, 0.0), rows.mask))
+    return tuple(out)
+
+
+def joint_residuals(model: AbstractModel, coding: Coding, nu, eta, data: tuple[Rows, ...]):
+    """Masked residuals [N] of the laws of node values `nu` (and lag `eta`) on every record,
+    flattened (zero on unscored samples)."""
+    return jnp.concatenate([r.ravel() for r, _ in
+                            joint_residual_blocks(model, coding, nu, eta, data)])
 
 
 def _rms(r, n):
@@ -390,17 +399,14 @@ def build_objective(
                           sum(e[0] < n_fixed for e in ls), exp_lin)
 
 
-def bounded_box(model: AbstractModel, layout: Layout, coding: Coding, lower: np.ndarray,
-                upper: np.ndarray, lag_bounds: tuple[float, float] | None = None,
-                free_shape: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """The box of the polish's variables (:meth:`Coding.bounded_of`): every node value of a
-    law within its parameter's bounds `lower`, `upper` (P,) (their logarithms for log-searched
-    nodes and `"exp"` laws), the Bouc-Wen shape as `(log delta, q)` in `DELTA_RANGE` x
-    `Q_RANGE` (or, with delta, beta, gamma not constant, beta and gamma node values in the box
-    those ranges allow, unless `free_shape` is False), `log eta` in `lag_bounds` [1/s]."""
-    names = model.param_names
+def node_box(model: AbstractModel, layout: Layout, lower: np.ndarray, upper: np.ndarray,
+             free_shape: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The box (V,) of the laws' node values: each within its parameter's bounds `lower`,
+    `upper` (P,) (their logarithms for `"exp"` laws); with `free_shape`, the delta, beta, gamma
+    nodes of a Bouc-Wen-type model in the ranges `DELTA_RANGE` and `Q_RANGE` allow (the
+    |z|max = 1 scale)."""
     lo_n, hi_n = np.zeros(layout.n), np.zeros(layout.n)
-    for p, n in enumerate(names):
+    for p, n in enumerate(model.param_names):
         b = layout.block(p)
         a, c = float(lower[p]), float(upper[p])
         if free_shape and model.name in Z_SCALE_MODELS and n in ("delta", "beta", "gamma"):
@@ -410,6 +416,18 @@ def bounded_box(model: AbstractModel, layout: Layout, coding: Coding, lower: np.
         if layout.kinds[p] == "exp":
             a, c = math.log(max(a, 1e-300)), math.log(c)
         lo_n[b], hi_n[b] = a, c
+    return lo_n, hi_n
+
+
+def bounded_box(model: AbstractModel, layout: Layout, coding: Coding, lower: np.ndarray,
+                upper: np.ndarray, lag_bounds: tuple[float, float] | None = None,
+                free_shape: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The box of the polish's variables (:meth:`Coding.bounded_of`): every node value of a
+    law within its parameter's bounds `lower`, `upper` (P,) (their logarithms for log-searched
+    nodes and `"exp"` laws), the Bouc-Wen shape as `(log delta, q)` in `DELTA_RANGE` x
+    `Q_RANGE` (or, with delta, beta, gamma not constant, beta and gamma node values in the box
+    those ranges allow, unless `free_shape` is False), `log eta` in `lag_bounds` [1/s]."""
+    lo_n, hi_n = node_box(model, layout, lower, upper, free_shape)
     lo, hi = [], []
     for k, lg in zip(coding.direct, coding.direct_log):
         a, c = lo_n[k], hi_n[k]

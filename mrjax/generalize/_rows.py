@@ -73,6 +73,19 @@ def length_groups(lengths: np.ndarray, max_groups: int = MAX_GROUPS) -> list[np.
     return groups[::-1]
 
 
+def scored_lengths(mask: np.ndarray) -> np.ndarray:
+    """(C,) samples up to the last scored one of each record (1 where none is scored)."""
+    mask = np.asarray(mask, bool)
+    n = mask.shape[1] - np.argmax(mask[:, ::-1], axis=1)
+    return np.where(mask.any(axis=1), n, 1)
+
+
+def record_order(mask: np.ndarray, max_groups: int = MAX_GROUPS) -> np.ndarray:
+    """(C,) the records of constant commands in the order of the rows :func:`make_rows` makes
+    of them (group after group), for scored samples `mask` (C, T)."""
+    return np.concatenate(length_groups(scored_lengths(mask), max_groups))
+
+
 def make_rows(batch: Batch, mask: np.ndarray, command: np.ndarray, *,
               max_groups: int = MAX_GROUPS) -> tuple[Rows, ...]:
     """The records of `batch` as groups of rows: per-sample commands and constant ones apart,
@@ -83,8 +96,7 @@ def make_rows(batch: Batch, mask: np.ndarray, command: np.ndarray, *,
     """
     mask = np.asarray(mask, bool)
     cmd = np.asarray(command, float)
-    n = mask.shape[1] - np.argmax(mask[:, ::-1], axis=1)  # last scored sample + 1
-    n = np.where(mask.any(axis=1), n, 1)
+    n = scored_lengths(mask)
     if cmd.ndim == 2:
         m = np.asarray(batch.mask, bool)
         span = np.array([np.ptp(cmd[i][m[i]]) for i in range(cmd.shape[0])])

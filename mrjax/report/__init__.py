@@ -26,6 +26,8 @@ from ._loops import TANH_STEP_NOTE as TANH_STEP_NOTE
 from ._loops import condition_title as condition_title
 from ._loops import plot_data_loops as plot_data_loops
 from ._loops import plot_loops_grid as plot_loops_grid
+from ._posterior import law_posterior_figures as law_posterior_figures
+from ._posterior import plot_law_intervals as plot_law_intervals
 from ._posterior import plot_posterior_intervals as plot_posterior_intervals
 from ._posterior import plot_posterior_pair as plot_posterior_pair
 from ._posterior import plot_predictive_band as plot_predictive_band

@@ -179,3 +179,53 @@ def posterior_figures(tp: Any, band: Any | None = None) -> dict[str, bytes]:
     if band is not None:
         out["posterior_band.png"] = save_png_bytes(plot_predictive_band(band))
     return out
+
+
+def plot_law_intervals(lp: Any, *, level: float = 0.95, n: int = 61, ncols: int = 3) -> Figure:
+    """Each law's posterior median and central `level` band against current, with the
+    currents of the records it was sampled on marked, one subplot per parameter.
+
+    **Arguments:** `lp` a `mrjax.bayes.LawPosterior` (its `law_values`, `model`, `currents`);
+    `level`; `n` currents on the laws' range; `ncols` subplot columns.
+
+    **Returns:** the figure.
+    """
+    gm = lp.model
+    lo, hi = gm.current_range
+    grid = np.linspace(lo, hi, int(n))
+    vals = np.asarray(lp.law_values(grid), float)  # (S, n, P)
+    q = np.percentile(vals, (50.0 * (1.0 - level), 50.0, 50.0 * (1.0 + level)), axis=0)
+    names, units = gm.param_names, list(gm.model.units)
+    P = len(names)
+    ncols = max(1, min(ncols, P))
+    nrows = -(-P // ncols)
+    fig = new_figure(3.4 * ncols + 0.6, 2.6 * nrows + 0.6)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    for p, name in enumerate(names):
+        ax = axes[p // ncols][p % ncols]
+        ax.fill_between(grid, q[0][:, p], q[2][:, p], color="C0", alpha=0.3, lw=0,
+                        label=f"posterior {100 * level:g} %")
+        ax.plot(grid, q[1][:, p], color="C0", lw=1.0, label="median")
+        for c in np.unique(np.asarray(lp.currents, float)):
+            ax.axvline(c, color="0.7", lw=0.6, zorder=0)
+        unit = units[p].replace("*", "·")
+        ax.set_ylabel(f"{name} [{unit}]" if unit and unit != "-" else name, fontsize=8.5)
+        ax.set_xlabel(f"current [{gm.command_unit}]", fontsize=8.5)
+        ax.tick_params(labelsize=7.5)
+        ax.grid(True, lw=0.4, alpha=0.5)
+    for k in range(P, nrows * ncols):
+        axes[k // ncols][k % ncols].set_visible(False)
+    axes[0][0].legend(fontsize=7.5, frameon=False)
+    fig.suptitle(f"{gm.model.name}: posterior of the laws ({lp.posterior.noise} noise; grey: "
+                 "the records' currents)", fontsize=10)
+    return fig
+
+
+def law_posterior_figures(lp: Any, band: Any | None = None) -> dict[str, bytes]:
+    """The PNG figures of a laws' posterior, name -> bytes: `posterior_pair.png` (the node
+    values), `posterior_laws.png` and (with a `band`) `posterior_band.png`."""
+    out = {"posterior_pair.png": save_png_bytes(plot_posterior_pair(lp.nodes)),
+           "posterior_laws.png": save_png_bytes(plot_law_intervals(lp))}
+    if band is not None:
+        out["posterior_band.png"] = save_png_bytes(plot_predictive_band(band))
+    return out
