@@ -215,7 +215,12 @@ class Posterior:
         """One line per convergence problem: R-hat > `RHAT_MAX`, bulk or tail ESS < `ESS_MIN`,
         divergent transitions; empty when none."""
         out = []
-        u = self.unit_dim
+
+        def units(n: int) -> str:  # "3 conditions", "1 condition", "the laws"
+            if self.unit_dim == "laws":
+                return "the laws"
+            return f"{n} {self.unit_dim}{'' if n == 1 else 's'}"
+
         for key, bad, what in (("r_hat", lambda a: a > RHAT_MAX, f"R-hat > {RHAT_MAX}"),
                                ("ess_bulk", lambda a: a < ESS_MIN, f"bulk ESS < {ESS_MIN}"),
                                ("ess_tail", lambda a: a < ESS_MIN, f"tail ESS < {ESS_MIN}")):
@@ -231,13 +236,13 @@ class Posterior:
                     min(hits, key=lambda h: h[2])
                 n_units = len({h[1] for h in hits})
                 out.append(f"posterior not converged: {what} for {len(hits)} variable(s) in "
-                           f"{n_units} {u}(s) (worst {worst[0]} on {worst[1]!r}: "
+                           f"{units(n_units)} (worst {worst[0]} on {worst[1]!r}: "
                            f"{worst[2]:.4g}); run more --draws / --warmup")
         div = self.diverging.sum(axis=(1, 2))
         if div.sum():
             i = int(np.argmax(div))
             out.append(f"posterior: {int(div.sum())} divergent transition(s) in "
-                       f"{int(np.sum(div > 0))} {u}(s) (most: {int(div[i])} on "
+                       f"{units(int(np.sum(div > 0)))} (most: {int(div[i])} on "
                        f"{self.labels[i]!r}): the draws near a sharp or non-finite region "
                        f"may be biased")
         return out
