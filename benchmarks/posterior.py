@@ -310,7 +310,7 @@ def merge(section: str, value: Any) -> None:
     doc[section] = value
     doc.setdefault("machine", {})[section] = machine()
     OUT_JSON.write_text(json.dumps(doc, indent=1))
-    OUT_MD.write_text(render(doc))
+    _write_md(render(doc))
 
 
 def machine() -> dict[str, Any]:
@@ -345,6 +345,18 @@ def _width_ratio(a: dict, b: dict) -> float:
         ok = (wb > 0) & np.isfinite(wa) & np.isfinite(wb)
         r += list(wa[ok] / wb[ok])
     return float(np.median(r)) if r else float("nan")
+
+
+def _write_md(text: str) -> None:
+    """posterior.md: `text`, then the sections other scripts write there (from
+    `benchmarks/posterior_laws.py`'s on), kept as they are."""
+    old = OUT_MD.read_text() if OUT_MD.exists() else ""
+    i = old.find(LAWS_SECTION)
+    OUT_MD.write_text(text.rstrip("\n") + ("\n\n" + old[i:] if i >= 0 else "\n"))
+
+
+#: The first heading of the sections of posterior.md that `benchmarks.posterior_laws` writes.
+LAWS_SECTION = "## Laws over current"
 
 
 def render(doc: dict[str, Any]) -> str:
@@ -491,7 +503,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(run_case(a)))
         return 0
     if a.what == "render":
-        OUT_MD.write_text(render(json.loads(OUT_JSON.read_text())))
+        _write_md(render(json.loads(OUT_JSON.read_text())))
         return 0
     if a.what == "calibration":
         calibration(a.records, a.draws, a.models.split(","))
