@@ -56,5 +56,7 @@ from ._priors import to_box as to_box
 from ._result import ESS_MIN as ESS_MIN
 from ._result import RHAT_MAX as RHAT_MAX
 from ._result import Posterior as Posterior
+from ._result import PosteriorFront as PosteriorFront
+from ._result import netcdf_bytes as netcdf_bytes
 from ._sampler import Sampler as Sampler
 from ._sampler import sample as sample

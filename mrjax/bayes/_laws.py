@@ -69,7 +69,7 @@ from ..refine import jacobian_uncertainty
 from ._noise import check_noise
 from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
 from ._priors import at_bounds
-from ._result import RHO, SIGMA, Posterior, arviz
+from ._result import RHO, SIGMA, Posterior, PosteriorFront, arviz
 from ._sampler import Sampler, sample
 
 #: How a new record's noise level is chosen (see the module notes).
@@ -162,7 +162,7 @@ def _constant_currents(batch: Batch) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class LawPosterior:
+class LawPosterior(PosteriorFront):
     """The posterior of the laws of a `GeneralizedModel` (one unit: the whole data set).
 
     **Fields:** `posterior` the coefficients' draws (a :class:`mrjax.bayes.Posterior` with
@@ -229,18 +229,6 @@ class LawPosterior:
         return az.from_dict(posterior=post, sample_stats=stats, constant_data=const,
                             dims=dims, coords=coords, attrs=attrs)
 
-    def summary(self) -> Any:
-        """The summary table (`pandas.DataFrame`) of the coefficients and noise levels."""
-        return self.posterior.summary()
-
-    def table(self, *, max_rows: int | None = None) -> str:
-        """A readable summary table with its diagnostics line."""
-        return self.posterior.table(max_rows=max_rows)
-
-    def problems(self) -> list[str]:
-        """Convergence warning lines (see `mrjax.bayes.Posterior.problems`)."""
-        return self.posterior.problems()
-
     def to_dict(self) -> dict[str, Any]:
         """The `posterior` entry of fit.json: `kind: "laws"`, the summary per coefficient and
         record noise level, the records, their currents and force scales, the noise rule."""
@@ -250,23 +238,6 @@ class LawPosterior:
                     force_scale_N=[float(s) for s in self.force_scale],
                     residual_rms_N=[float(s) for s in self.residual_rms],
                     scored_samples=[int(n) for n in self.n_scored], noise_rule=NOISE_RULE)
-
-    def to_csv(self) -> str:
-        """`posterior.csv` text."""
-        return self.posterior.to_csv()
-
-    def netcdf_bytes(self) -> bytes:
-        """`posterior.nc` bytes (:attr:`idata` as netCDF-4)."""
-        import tempfile
-
-        fd, path = tempfile.mkstemp(suffix=".nc")
-        os.close(fd)
-        try:
-            self.idata.to_netcdf(path)
-            with open(path, "rb") as f:
-                return f.read()
-        finally:
-            os.unlink(path)
 
     def draws(self, max_draws: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """`(coefficients (S, V), sigma (S, R) [N])`, chains pooled, at most `max_draws`

@@ -28,7 +28,7 @@ from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import residuals
 from ._noise import check_noise
 from ._priors import at_bounds
-from ._result import Posterior
+from ._result import Posterior, PosteriorFront
 from ._sampler import Sampler, sample
 
 if TYPE_CHECKING:  # `_laws` builds on this module
@@ -93,7 +93,7 @@ def _forces(model, thetas, x, xdot, dt):
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class TestPosterior:
+class TestPosterior(PosteriorFront):
     """The posterior of a per-test fit: `posterior` (a :class:`mrjax.bayes.Posterior` over the
     conditions), the `model`, the `fit` it started from, and `data` (`"record"` or `"view"`,
     what the likelihood scored), `n_scored` (C,) samples it scored."""
@@ -109,35 +109,10 @@ class TestPosterior:
         """Condition labels."""
         return self.posterior.labels
 
-    @property
-    def idata(self) -> Any:
-        """The draws as `arviz.InferenceData` (see `mrjax.bayes.Posterior.idata`)."""
-        return self.posterior.idata
-
-    def summary(self) -> Any:
-        """The summary table (`pandas.DataFrame`), see `mrjax.bayes.Posterior.summary`."""
-        return self.posterior.summary()
-
-    def table(self, *, max_rows: int | None = None) -> str:
-        """A readable summary table with its diagnostics line."""
-        return self.posterior.table(max_rows=max_rows)
-
-    def problems(self) -> list[str]:
-        """Convergence warning lines (see `mrjax.bayes.Posterior.problems`)."""
-        return self.posterior.problems()
-
     def to_dict(self) -> dict[str, Any]:
         """The `posterior` entry of fit.json (with `likelihood_data`)."""
         return dict(self.posterior.to_dict(), likelihood_data=self.data,
                     scored_samples=[int(n) for n in self.n_scored])
-
-    def to_csv(self) -> str:
-        """`posterior.csv` text."""
-        return self.posterior.to_csv()
-
-    def netcdf_bytes(self) -> bytes:
-        """`posterior.nc` bytes."""
-        return self.posterior.netcdf_bytes()
 
     def predict_band(
         self,

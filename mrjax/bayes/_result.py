@@ -296,15 +296,54 @@ class Posterior:
     def netcdf_bytes(self) -> bytes:
         """`posterior.nc`: :attr:`idata` as netCDF-4 (h5netcdf), readable by
         `arviz.from_netcdf` and `xarray.open_dataset(..., group="posterior")`."""
-        fd, path = tempfile.mkstemp(suffix=".nc")
-        os.close(fd)
-        try:
-            self.idata.to_netcdf(path)
-            with open(path, "rb") as f:
-                return f.read()
-        finally:
-            os.unlink(path)
+        return netcdf_bytes(self.idata)
 
     def __repr__(self) -> str:
         return (f"Posterior(U={self.n_units}, chains={self.n_chains}, draws={self.n_draws}, "
                 f"noise={self.noise!r}, params={list(self.names)})")
+
+
+def netcdf_bytes(idata: Any) -> bytes:
+    """The bytes of `idata` (`arviz.InferenceData`) written as netCDF-4 (`posterior.nc`)."""
+    fd, path = tempfile.mkstemp(suffix=".nc")
+    os.close(fd)
+    try:
+        idata.to_netcdf(path)
+        with open(path, "rb") as f:
+            return f.read()
+    finally:
+        os.unlink(path)
+
+
+class PosteriorFront:
+    """What the result of every problem kind's posterior (`mrjax.bayes.TestPosterior`,
+    `mrjax.bayes.LawPosterior`) shows of its :class:`Posterior` (the `posterior` field):
+    the summary, its table, the convergence warnings, `posterior.csv` and `posterior.nc` of
+    its `idata`."""
+
+    posterior: Posterior
+
+    @property
+    def idata(self) -> Any:
+        """The draws as `arviz.InferenceData` (see :attr:`Posterior.idata`)."""
+        return self.posterior.idata
+
+    def summary(self) -> Any:
+        """The summary table (`pandas.DataFrame`), see :meth:`Posterior.summary`."""
+        return self.posterior.summary()
+
+    def table(self, *, max_rows: int | None = None) -> str:
+        """A readable summary table with its diagnostics line."""
+        return self.posterior.table(max_rows=max_rows)
+
+    def problems(self) -> list[str]:
+        """Convergence warning lines (see :meth:`Posterior.problems`)."""
+        return self.posterior.problems()
+
+    def to_csv(self) -> str:
+        """`posterior.csv` text."""
+        return self.posterior.to_csv()
+
+    def netcdf_bytes(self) -> bytes:
+        """`posterior.nc` bytes (:attr:`idata` as netCDF-4)."""
+        return netcdf_bytes(self.idata)
