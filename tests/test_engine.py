@@ -20,8 +20,13 @@ def grid():
 
 
 # ------------------------------------------------------------------------ the matrix
-@pytest.mark.parametrize("setting", sorted(ENGINE_SETTINGS))
-@pytest.mark.parametrize("name", MODEL_NAMES)
+#: The float32 swarm on the Bouc-Wen models (13-18 s each on 2 cores) adds no path that Dahl's
+#: (the ODE models' float32 integration) and the static models' do not take.
+MATRIX = [(n, s) for n in MODEL_NAMES for s in sorted(ENGINE_SETTINGS)
+          if not (s == "float32" and n in ("bouc_wen", "modified_bouc_wen"))]
+
+
+@pytest.mark.parametrize("name,setting", MATRIX, ids=[f"{n}-{s}" for n, s in MATRIX])
 def test_every_model_and_setting_reaches_the_noise_floor(name, setting):
     """Known answer over models x settings: on records simulated from known parameters with
     1 % noise, the fit's RMS is at most the true parameters' (the noise floor) up to 0.5 %,

@@ -71,7 +71,7 @@ def test_core_matches_least_squares_posterior():
     RMS."""
     data, _ = line_data()
     est, se, cov = ols(data)
-    post = sample(Line(), est, data, cov0=cov, **BOX)
+    post = sample(Line(), est, data, **BOX)
     th = post.theta.reshape(2, -1, 2)
     # Monte Carlo error of a mean: sd / sqrt(ESS), ESS >= 150 -> < 0.1 sd
     np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
@@ -90,8 +90,8 @@ def test_core_ar1_recovers_rho_and_widens_intervals():
     correlated noise)."""
     data, truth = line_data(rho=0.8, seed=1)
     est, se, cov = ols(data)
-    iid = sample(Line(), est, data, noise="iid", cov0=cov, **BOX)
-    ar1 = sample(Line(), est, data, noise="ar1", cov0=cov, **BOX)
+    iid = sample(Line(), est, data, noise="iid", **BOX)
+    ar1 = sample(Line(), est, data, noise="ar1", **BOX)
     lo, hi = ar1.interval("noise_rho", 0.999).T  # 200 samples: rho is known to +-0.1
     assert np.all((lo < 0.8) & (0.8 < hi)), (lo, hi)
     ratio = np.ptp(ar1.interval("b"), axis=1) / np.ptp(iid.interval("b"), axis=1)
@@ -104,10 +104,10 @@ def test_priors_pull_and_narrow():
     data, _ = line_data()
     est, se, cov = ols(data)
     target = est[0, 0] + 5 * se[0, 0]
-    p = sample(Line(), est, data, prior={"a": Normal(target, se[0, 0] / 10)}, cov0=cov, **BOX)
+    p = sample(Line(), est, data, prior={"a": Normal(target, se[0, 0] / 10)}, **BOX)
     assert abs(p.draws("a")[0].mean() - target) < 0.2 * se[0, 0]
     cut = est[0, 1] - se[0, 1]
-    q = sample(Line(), est, data, prior={"b": Uniform(-10.0, cut)}, cov0=cov, **BOX)
+    q = sample(Line(), est, data, prior={"b": Uniform(-10.0, cut)}, **BOX)
     assert q.draws("b")[0].max() <= cut
     assert q.prior == {"b": f"uniform(-10, {cut:g})"}
 
@@ -121,7 +121,7 @@ def test_nan_model_output_is_minus_inf_never_nan():
     shift = -0.5 * se[:, :1] - est[:, :1]
     data = (data[0], data[1] + shift, data[2])
     est[:, :1] += shift
-    post = sample(Line(jnp.asarray(0.0)), est, data, cov0=cov, **BOX)
+    post = sample(Line(jnp.asarray(0.0)), est, data, **BOX)
     assert np.all(np.isfinite(post.theta)) and np.all(np.isfinite(post.lp))
     assert post.theta[..., 0].max() <= 0.0
     assert np.all(post.theta[..., 0].min(axis=(1, 2)) < est[:, 0] - se[:, 0])  # explored
@@ -130,9 +130,9 @@ def test_nan_model_output_is_minus_inf_never_nan():
 def test_same_seed_same_draws():
     data, _ = line_data()
     est, _, cov = ols(data)
-    a = sample(Line(), est, data, seed=3, cov0=cov, **BOX)
-    b = sample(Line(), est, data, seed=3, cov0=cov, **BOX)
-    c = sample(Line(), est, data, seed=4, cov0=cov, **BOX)
+    a = sample(Line(), est, data, seed=3, **BOX)
+    b = sample(Line(), est, data, seed=3, **BOX)
+    c = sample(Line(), est, data, seed=4, **BOX)
     np.testing.assert_array_equal(a.theta, b.theta)
     np.testing.assert_array_equal(a.sigma, b.sigma)
     assert not np.array_equal(a.theta, c.theta)
@@ -165,7 +165,7 @@ def test_near_a_bound_truncated_normal_without_divergences():
     data = (data[0], data[1] + shift[:, None], data[2])
     est[:, 0] += shift
     box = dict(BOX, lower=[0.0, -10.0])
-    post = sample(Line(), est, data, cov0=cov, **box)
+    post = sample(Line(), est, data, **box)
     a = post.draws("a")
     for i in range(2):
         cdf = lambda x: (norm.cdf((x - est[i, 0]) / se[i, 0]) - norm.cdf(-1.5)) / norm.sf(-1.5)
@@ -190,6 +190,41 @@ def test_bad_options_one_line(bad, match):
     with pytest.raises(InputError, match=match) as e:
         sample(Line(), np.zeros((2, 2)), data, **kw)
     assert "\n" not in str(e.value)
+
+
+class Product(eqx.Module):
+    """Residuals of y = a b t + c: `a` and `b` enter only through their product (a symmetry,
+    as modified Bouc-Wen's z scale), `c` alone."""
+
+    def __call__(self, theta, unit):
+        t, y, m = unit
+        return (((theta[0] * theta[1] * t + theta[2] - y)[None], m[None]),)
+
+
+@pytest.mark.parametrize("gauge", [("b",), ()])
+def test_a_symmetry_is_held_and_the_rest_is_conditional(gauge):
+    """Known answer: with an exact symmetry (only a b is determined) one unknown is held at the
+    optimum (the `gauge` name where given), the posterior of the other, times it, is the
+    least-squares slope with its std-error, and a problems line says which was held."""
+    data, truth = line_data(U=1, T=300)
+    est, se, _ = ols(data)
+    a0, b0 = 2.0, est[0, 1] / 2.0  # an optimum on the symmetry's orbit
+    theta0 = np.array([[a0, b0, est[0, 0]]])
+    post = sample(Product(), theta0, data, lower=[0.1, 0.1, -10.0], upper=[10.0, 10.0, 10.0],
+                  names=("a", "b", "c"), sampler=SHORT, gauge=gauge)
+    held = post.held[0]
+    assert held.sum() == 1 and not held[2]
+    if gauge:
+        assert held[1]
+    j, k = (1, 0) if held[1] else (0, 1)
+    fixed = theta0[0, j]
+    assert np.all(post.theta[0, ..., j] == fixed)
+    slope = post.theta[0, ..., k] * fixed
+    assert abs(slope.mean() - est[0, 1]) < 0.3 * se[0, 1]
+    np.testing.assert_allclose(slope.std() / se[0, 1], 1.0, atol=0.2)
+    lines = post.problems()
+    assert any(f"{'ab'[j]} held at its fitted value in 1 condition" in ln for ln in lines), lines
+    assert post.diagnostics()["r_hat_max"] < 1.05  # the held unknown's NaN left out
 
 
 def test_diagnostics_flag_split_chains_and_divergences():

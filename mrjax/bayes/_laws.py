@@ -10,9 +10,8 @@ bounds, `mrjax.generalize.node_box`) is flat on the coefficients too. One unit h
 data set: one block of rows per group of records of similar length
 (`mrjax.generalize.joint_residual_blocks`, the residuals of the joint fit), one noise level
 per record, one AR(1) coefficient for all of them with `noise="ar1"`. The chains start at the
-laws' node values with the Jacobian covariance of these unknowns on the likelihood's data
-(`mrjax.refine.jacobian_uncertainty`, the rule of `law_uncertainty`) as the start of the mass
-matrix.
+laws' node values with the Gauss-Newton covariance of these unknowns on the likelihood's data
+as the start of the mass matrix (`mrjax.bayes.sample`).
 
 **Predictive band on a new record.** Each kept draw gives the coefficients, hence the
 parameters at the record's current and its force (the model through the one integrator),
@@ -65,7 +64,6 @@ from ..generalize import (
     nodes,
     record_order,
 )
-from ..refine import jacobian_uncertainty
 from ._noise import check_noise
 from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
 from ._priors import at_bounds
@@ -88,13 +86,6 @@ class LawBlocks(eqx.Module):
     def __call__(self, phi, data):
         nu, eta = self.coding.from_free(phi)
         return joint_residual_blocks(self.model, self.coding, nu, eta, data)
-
-
-@eqx.filter_jit
-def _flat_jacobian(residual: LawBlocks, phi, data):
-    """The residuals (N,) and their Jacobian (N, Q) in the free node values (forward mode)."""
-    flat = lambda p: jnp.concatenate([r.ravel() for r, _ in residual(p, data)])
-    return flat(phi), jax.jacfwd(flat)(phi)
 
 
 @eqx.filter_jit
@@ -486,8 +477,6 @@ def law_posterior(
     order = record_order(m)
     run_model = gm.resolved_model(cur, b.xdot, b.dt, m)
     residual = LawBlocks(run_model, coding)
-    r0, J = _flat_jacobian(residual, jnp.asarray(phi0), rows)
-    _, cov, *_ = jacobian_uncertainty(r0, J, int(m.sum()))
     if gm.method != "joint":
         warnings.warn(f"posterior of {gm.method} laws: the chains start from them, not from "
                       "the joint least-squares optimum, and need a longer warmup",
@@ -500,7 +489,7 @@ def law_posterior(
     labels = tuple(batch.labels[i] for i in order)
     data1 = jax.tree.map(lambda a: a[None], rows)
     post = sample(residual, phi0[None], data1, lower=lo, upper=hi, names=names,
-                  labels=("laws",), row_labels=labels, cov0=np.asarray(cov)[None],
+                  labels=("laws",), row_labels=labels,
                   sampler=sampler, noise=noise, prior=prior, key=key, seed=seed,
                   progress=progress, unit_dim="laws", units=units)
     Q = len(free)

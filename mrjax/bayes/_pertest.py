@@ -23,7 +23,7 @@ from jaxtyping import ArrayLike
 from .._errors import InputError
 from ..data import Batch, Condition, as_batch, fit_mask, swarm_view
 from ..fitting import FitResult
-from ..generalize import GeneralizedModel
+from ..generalize import Z_SCALE_MODELS, GeneralizedModel
 from ..models import AbstractModel, check_bounds, resolve_model
 from ..objective import residuals
 from ._noise import check_noise
@@ -34,6 +34,9 @@ from ._sampler import Sampler, sample
 if TYPE_CHECKING:  # `_laws` builds on this module
     from ._laws import LawPosterior
 
+#: The unknown held first where the records leave a direction undetermined, in the models of
+#: `mrjax.generalize.Z_SCALE_MODELS` (their z scale: Spencer's A, a common choice to fix).
+GAUGE: tuple[str, ...] = ("delta",)
 #: What the likelihood scores: the full `record`, or the swarm's `view` of it (every k-th
 #: sample, the first whole periods; see `mrjax.fitting.swarm_view`).
 DATA_CHOICES: tuple[str, ...] = ("record", "view")
@@ -248,12 +251,6 @@ def read_draws(path: str | os.PathLike, names: Sequence[str], *,
     return labels, theta[:, pick], sigma[:, pick]
 
 
-def _jacobian_cov(result: FitResult) -> np.ndarray:
-    """(C, P, P) the fit's Jacobian covariance, NaN where undefined."""
-    se = np.asarray(result.stderr, float)
-    return np.asarray(result.corr, float) * se[:, :, None] * se[:, None, :]
-
-
 def _check_start(result: FitResult, lo: np.ndarray, hi: np.ndarray) -> None:
     """Warnings: a fit without polish; parameters at their bounds. An error: parameters
     outside the bounds (a fit with other bounds)."""
@@ -365,21 +362,17 @@ def posterior(
     _check_start(result, lo, hi)
     choice = likelihood_data or ("view" if model.dynamic else "record")
     mask = fit_mask(batch, transient)
-    cov = _jacobian_cov(result)
     if choice == "view":
         view = swarm_view(batch, transient)
         batch, mask = view.batch, view.mask
     n_scored = np.asarray(mask).sum(axis=1)
-    if choice == "view":  # the Jacobian covariance is of the full record: widen it
-        cov = cov * (np.asarray(result.n_samples, float) / np.maximum(n_scored, 1))[:, None,
-                                                                                     None]
     theta0 = np.clip(np.asarray(result.theta, float), lo, hi)
     run_model = resolve_model(model, theta0, batch.xdot, batch.dt, batch.mask)
     units = (batch.x, batch.xdot, batch.dt, batch.force, jnp.asarray(mask))
     post = sample(PerTestResidual(run_model), theta0, units, lower=lo, upper=hi,
-                  names=model.param_names, labels=batch.labels, cov0=cov, sampler=sampler,
+                  names=model.param_names, labels=batch.labels, sampler=sampler,
                   noise=noise, prior=prior, key=key, seed=seed, progress=progress,
-                  units=model.units)
+                  units=model.units, gauge=GAUGE if model.name in Z_SCALE_MODELS else ())
     for line in post.problems():
         warnings.warn(line, RuntimeWarning, stacklevel=2)
     return TestPosterior(posterior=post, model=model, fit=result, data=choice,

@@ -102,6 +102,14 @@ class Posterior:
             return self.rho.reshape(U, -1)
         return self.theta[..., self.names.index(name)].reshape(U, -1)
 
+    @property
+    def held(self) -> np.ndarray:
+        """(U, K) the unknowns held at `theta0` in each unit, because the data left a
+        direction of the unknowns undetermined (see `mrjax.bayes.sample`): sampled unknowns
+        whose box is a point."""
+        point = np.asarray(self.upper, float) <= np.asarray(self.lower, float)
+        return np.asarray(self.free, bool)[None, :] & point
+
     def interval(self, name: str, level: float = 0.95) -> np.ndarray:
         """Central credible interval of `name` per unit, (U, 2), SI units."""
         q = 50.0 * (1.0 - level), 50.0 * (1.0 + level)
@@ -159,8 +167,13 @@ class Posterior:
             out = {"r_hat": az.rhat(post, method="rank"),
                    "ess_bulk": az.ess(post, method="bulk"),
                    "ess_tail": az.ess(post, method="tail")}
-        return {k: {v: np.asarray(ds[v].values, float) for v in ds.data_vars}
+        diag = {k: {v: np.asarray(ds[v].values, float) for v in ds.data_vars}
                 for k, ds in out.items()}
+        held = self.held
+        for j in np.flatnonzero(held.any(axis=0)):  # constant draws: no diagnostic
+            for k in diag:
+                diag[k][self.names[j]] = np.where(held[:, j], np.nan, diag[k][self.names[j]])
+        return diag
 
     # ----------------------------------------------------------------------------- tables
     def summary(self) -> Any:
@@ -227,7 +240,9 @@ class Posterior:
             hits = []
             for v, a in self._diag[key].items():
                 a2 = a.reshape(a.shape[0], -1)
-                for i in np.flatnonzero(np.any(~np.isfinite(a2) | bad(a2), axis=1)):
+                skip = self.held[:, self.names.index(v)] if v in self.names else \
+                    np.zeros(a2.shape[0], bool)
+                for i in np.flatnonzero(np.any(~np.isfinite(a2) | bad(a2), axis=1) & ~skip):
                     val = a2[i][np.isfinite(a2[i])]
                     hits.append((v, self.labels[i], float(val.max() if key == "r_hat" else
                                                          val.min()) if val.size else np.nan))
@@ -238,6 +253,14 @@ class Posterior:
                 out.append(f"posterior not converged: {what} for {len(hits)} variable(s) in "
                            f"{units(n_units)} (worst {worst[0]} on {worst[1]!r}: "
                            f"{worst[2]:.4g}); run more --draws / --warmup")
+        held = self.held
+        for j in np.flatnonzero(held.any(axis=0)):
+            rows = np.flatnonzero(held[:, j])
+            out.append(f"posterior: {self.names[j]} held at its fitted value in "
+                       f"{units(rows.size)} (first {self.labels[rows[0]]!r}): the data leave "
+                       f"a direction of the unknowns undetermined (a symmetry of the model, "
+                       f"or no effect on these records); the others' posterior is "
+                       f"conditional on it")
         div = self.diverging.sum(axis=(1, 2))
         if div.sum():
             i = int(np.argmax(div))

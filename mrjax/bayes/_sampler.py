@@ -13,7 +13,8 @@ coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded 
 `blackjax.window_adaptation` (Stan's windows) from chains started around the polished optimum
 with an inverse mass matrix from its Jacobian covariance, and draws with `blackjax.nuts` in a
 `lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
-after another on a CPU, vmapped on an accelerator: see `Sampler.vectorize`).
+after another or a unit's chains at once on a CPU, vmapped on an accelerator: see
+`Sampler.vectorize`).
 
 The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the free unknowns in the bounded
 map; `log s` [log N] the records' noise levels, with `"ar1"` those of the innovations,
@@ -44,20 +45,35 @@ from ._priors import box_slope, check_priors, from_box, log_jacobian, log_prior,
 from ._result import Posterior
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
-#: (not identifiable, or at a bound: its softness is then its box width, and a posterior that
-#: fills the box or piles against a bound spans a few units of `u`), and the most any
-#: unknown's starting variance may be.
+#: (its softness is then its box width, and a posterior that fills the box spans a few units
+#: of `u`); no unknown's starting variance is above its box width in `u`, (W / d)^2, or this
+#: where that is smaller.
 FALLBACK_U_VAR = 1.0
 MAX_U_VAR = 4.0
 #: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
-#: starting standard deviation (its Jacobian one, widened for AR(1) noise), at most the box
-#: width (the box width where it is undefined): the map is linear over the posterior's bulk
-#: unless that reaches within a few `d` of a bound (then `u` has 2 starting standard
-#: deviations).
+#: starting standard deviation (the Jacobian Gaussian's, cut by the box, widened for AR(1)
+#: noise), at most the box width (the box width where it is undefined): the map is linear
+#: over the posterior's bulk unless that reaches within a few `d` of a bound. A posterior
+#: ridge that reaches into the map's curved zone is bent there, which a dense mass matrix
+#: cannot follow (modified Bouc-Wen on a UTFSM test, beta and gamma correlated -1.00 with
+#: gamma 6 /m below its bound: step sizes of 0.01 in the whitened coordinates at 0.5 and
+#: 0.1, 0.03-0.2 at 0.02 but trees still of hundreds of steps, 10 warmup steps each);
+#: 0.5 is the value of the tanh and Dahl calibration (0 divergences in 200,000 draws each).
 SOFTNESS = 0.5
 #: Chains start at the optimum plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the optimum).
 JITTER = 1.0
+#: A direction of the unknowns whose Gauss-Newton standard deviation exceeds this many box
+#: widths is undetermined by the data: one unknown along it is held (see `_undetermined`).
+UNDETERMINED = 1.0
+#: A `gauge` unknown is held for an undetermined direction where its component (in box
+#: widths) is at least this share of the largest one.
+GAUGE_SHARE = 0.1
+#: Draws of the Jacobian Gaussian that shape the start where the box cuts it (`_in_box`).
+START_DRAWS = 4000
+#: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
+#: one unit at a time, or none (one chain after another).
+VECTORIZE: tuple[str, ...] = ("all", "chains", "none")
 
 
 class Sampler(eqx.Module):
@@ -76,13 +92,18 @@ class Sampler(eqx.Module):
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
-    - `vectorize`: `True` vmaps every chain of every unit into one batch; `False` runs them
-        one after another with `lax.map`, in the same compiled program. `None` (default):
-        vmap on an accelerator, map on a CPU. A vmapped NUTS step runs until the longest
-        trajectory of its batch ends, so on a CPU (where one chain's residuals already fill
-        the vector units) the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x
-        200 steps on the swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its
-        compilation 12.6 s against 5.9 s (`benchmarks/posterior.md`).
+    - `vectorize`: `True` (or `"all"`) vmaps every chain of every unit into one batch;
+        `"chains"` vmaps the chains of a unit and runs the units one after another; `False`
+        (or `"none"`) runs every chain one after another with `lax.map`; all in one compiled
+        program. `None` (default): `"all"` on an accelerator; on a CPU `"chains"` for a
+        forward-mode gradient (a dynamic model: one sequential integration, whose small
+        steps leave a CPU's vector units idle, so a batch of chains costs little more than
+        one: modified Bouc-Wen on a UTFSM view, 4 gradients 18 ms batched against 4 x 7.8 ms),
+        else `"none"`. A vmapped NUTS step runs until the longest trajectory of its batch
+        ends, so where one chain's residuals already fill the vector units (tanh on a record)
+        the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x 200 steps on the
+        swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its compilation 12.6 s
+        against 5.9 s (`benchmarks/posterior.md`).
     - `gradient`: how the residuals are differentiated: `"reverse"` (default) or `"forward"`
         (their Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential
         integration, e.g. the dynamic models).
@@ -94,7 +115,7 @@ class Sampler(eqx.Module):
     target_accept: float = eqx.field(static=True, default=0.9)
     max_doublings: int = eqx.field(static=True, default=10)
     dense_mass: bool = eqx.field(static=True, default=True)
-    vectorize: bool | None = eqx.field(static=True, default=None)
+    vectorize: bool | str | None = eqx.field(static=True, default=None)
     gradient: str = eqx.field(static=True, default="reverse")
 
     def check(self) -> Sampler:
@@ -106,6 +127,9 @@ class Sampler(eqx.Module):
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not 0.0 < float(self.target_accept) < 1.0:
             raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
+        if self.vectorize not in (None, True, False, *VECTORIZE):
+            raise InputError(f"vectorize must be None, True, False or one of "
+                             f"{', '.join(VECTORIZE)}, got {self.vectorize!r}")
         if self.gradient not in ("reverse", "forward"):
             raise InputError(f"gradient must be 'reverse' or 'forward', got {self.gradient!r}")
         return self
@@ -188,11 +212,14 @@ def _tick(n):
                              vmap_method="broadcast_all")
 
 
-def vectorized(sampler: Sampler) -> bool:
-    """Whether chains and units are vmapped (see `Sampler.vectorize`)."""
-    if sampler.vectorize is not None:
-        return bool(sampler.vectorize)
-    return jax.default_backend() != "cpu"
+def vectorized(sampler: Sampler) -> str:
+    """What is vmapped, `"all"`, `"chains"` or `"none"` (see `Sampler.vectorize`)."""
+    v = sampler.vectorize
+    if v is None:
+        if jax.default_backend() != "cpu":
+            return "all"
+        return "chains" if sampler.gradient == "forward" else "none"
+    return {True: "all", False: "none"}.get(v, v) if isinstance(v, bool) else str(v)
 
 
 # ------------------------------------------------------------------------------ the program
@@ -207,7 +234,7 @@ def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
     jkey, wkey, skey = jax.random.split(key, 3)
     w_try = JITTER * jax.random.normal(jkey, z0.shape, z0.dtype)
     w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
-    per_step = progress and vectorized(sampler)
+    per_step = progress and vectorized(sampler) != "none"
     one_tick = jnp.ones((), jnp.int32)
     info_fn = (lambda state, info, ad: _tick(one_tick + 0 * info.num_integration_steps)) \
         if per_step else (lambda state, info, ad: None)
@@ -239,9 +266,12 @@ def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
 @eqx.filter_jit
 def _run(target, prior, sampler, progress, units, z0, L, keys):
     chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
-    if vectorized(sampler):  # one batch of units x chains
-        batched = jax.vmap(jax.vmap(chain, in_axes=(None, None, None, 0)))
-        trace, step, done = batched(units, z0, L, keys)
+    mode = vectorized(sampler)
+    over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
+    if mode == "all":  # one batch of units x chains
+        trace, step, done = jax.vmap(over_chains)(units, z0, L, keys)
+    elif mode == "chains":  # a batch of chains, one unit after another
+        trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
     else:  # one chain after another, in the same compiled program
         over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
         trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
@@ -262,23 +292,97 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
 
 
 # ------------------------------------------------------------------------------ the start
-def _start(residual, theta0, lo, hi, data, cov0, free, noise):
-    """Host: the sampler's start `z0` (U, D), inverse mass matrix (U, D, D) and the bounded
-    map's softness (U, Kf) per unit, from the optimum, the Jacobian covariance and the
-    residuals there (`lo`, `hi` (U, Kf) the free unknowns' boxes)."""
-    blocks = jax.vmap(residual)(jnp.asarray(theta0), data)
+@eqx.filter_jit
+def _linearize(residual, free: tuple[int, ...], theta0, data):
+    """Every unit's residual blocks, masks and their Jacobian in the free unknowns at the
+    optimum (forward mode), one compiled program per residual function."""
+    idx = np.asarray(free, int)
+
+    def one(th, d):
+        f = lambda tf: tuple(r for r, _ in residual(th.at[idx].set(tf), d))
+        masks = tuple(m for _, m in residual(th, d))
+        return f(th[idx]), masks, jax.jacfwd(f)(th[idx])
+
+    return jax.vmap(one)(theta0, data)
+
+
+def _undetermined(H: np.ndarray, width: np.ndarray, names: Sequence[str],
+                  gauge: Sequence[str]) -> list[int]:
+    """Host: which unknowns to hold at the optimum, so that the data determine the rest.
+
+    `H` (K, K) the Gauss-Newton precision of the unknowns [1 / unit^2], `width` (K,) their box
+    widths. A direction whose posterior standard deviation (in box widths) exceeds
+    `UNDETERMINED` x the box is one the data leave to the prior: a symmetry of the model
+    (modified Bouc-Wen's z scale: alpha z, delta, beta, gamma scale together and the force
+    does not change) or an unknown without effect on these records. NUTS on such a ridge,
+    curved through the box, builds trees of hundreds of steps; holding one unknown per
+    direction (a `gauge` name where it takes part, else the largest component) removes it.
+    Returns the indices held, in order."""
+    held: list[int] = []
+    live = [k for k in range(H.shape[0]) if width[k] > 0]
+    while live:
+        Hs = H[np.ix_(live, live)] * np.outer(width[live], width[live])
+        if not np.all(np.isfinite(Hs)):
+            break
+        w, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
+        if w[0] * UNDETERMINED ** 2 >= 1.0:
+            break
+        comp = np.abs(V[:, 0])
+        big = comp >= GAUGE_SHARE * comp.max()
+        pref = [i for i in np.flatnonzero(big) if names[live[i]] in gauge]
+        pick = live[pref[0] if pref else int(np.argmax(comp))]
+        held.append(pick)
+        live.remove(pick)
+    return held
+
+
+def _start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
+    """Host: the sampler's start `z0` (U, D), inverse mass matrix (U, D, D), the bounded map's
+    softness (U, Kf) and box (U, Kf) per unit (`lo`, `hi` the free unknowns' boxes), and the
+    unknowns held (U, Kf) bool, from the optimum and the Gauss-Newton covariance of the
+    residuals there (the likelihood's own data: records or views, every block)."""
+    vals, masks, jacs = jax.device_get(_linearize(residual, tuple(free), jnp.asarray(theta0),
+                                                  data))
     idx = np.asarray(free, int)
     Kf = idx.size
-    z0, imm, soft = [], [], []
+    lo, hi = np.array(lo, float), np.array(hi, float)
+    z0, imm, soft, held_all = [], [], [], []
     for i in range(theta0.shape[0]):
-        sig, rho, n = noise_start([(np.asarray(r[i]), np.asarray(m[i])) for r, m in blocks])
+        blocks = [(np.asarray(r[i]), np.asarray(m[i])) for r, m in zip(vals, masks)]
+        sig, rho, n = noise_start(blocks)
         n = np.maximum(n, 1).astype(float)
         # AR(1) residuals carry (1 - rho) / (1 + rho) of the information of independent ones
         infl = min((1.0 + rho) / (1.0 - rho), 1e4) if noise == "ar1" and rho > 0 else 1.0
-        cov = None if cov0 is None else cov0[i][np.ix_(idx, idx)] * infl
+        H, off = np.zeros((Kf, Kf)), 0
+        for (r, m), J in zip(blocks, jacs):
+            Jb = np.where((m & np.isfinite(r))[..., None], np.asarray(J[i], float), 0.0)
+            w = 1.0 / sig[off:off + r.shape[0]] ** 2
+            H += np.einsum("rtk,r,rtl->kl", Jb, w, Jb)
+            off += r.shape[0]
+        H /= infl
+        held = _undetermined(H, hi[i] - lo[i], [names[k] for k in idx] if names else [],
+                             gauge)
+        held_mask = np.zeros(Kf, bool)
+        held_mask[held] = True
+        lo[i, held_mask] = hi[i, held_mask] = np.clip(theta0[i, idx], lo[i], hi[i])[held_mask]
+        keep = np.flatnonzero(~held_mask & (hi[i] > lo[i]))
+        cov = np.full((Kf, Kf), np.nan)
+        Hk = H[np.ix_(keep, keep)]
+        if keep.size and np.all(np.isfinite(Hk)):
+            cov[np.ix_(keep, keep)] = np.linalg.pinv(Hk, rcond=1e-12, hermitian=True)
+        X = _in_box(theta0[i, idx[keep]], cov[np.ix_(keep, keep)], lo[i, keep], hi[i, keep])
+        if X is not None:  # the Gaussian cut by the box: its spread, then in `u`
+            cov[np.ix_(keep, keep)] = np.cov(X, rowvar=False)
         d = _softness(cov, lo[i], hi[i])
         u0 = from_box(theta0[i, idx], lo[i], hi[i], d)
-        cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d))
+        cap = np.maximum(((hi[i] - lo[i]) / d) ** 2, MAX_U_VAR)
+        cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d), cap)
+        if X is not None:
+            cu[np.ix_(keep, keep)] = np.cov(from_box(X, lo[i, keep], hi[i, keep], d[keep]),
+                                            rowvar=False)
+        point = hi[i] <= lo[i]  # held: `u` a nuisance of logistic density (variance pi^2 / 3)
+        cu[point, :] = cu[:, point] = 0.0
+        cu[point, point] = np.pi ** 2 / 3.0
         var = [np.minimum(1.0 / (2.0 * n), MAX_U_VAR)]  # log sigma: 1 / (2 n) each
         zi = [u0, np.log(sig)]
         if noise == "ar1":  # the innovations' level sigma sqrt(1 - rho^2), and atanh(rho)
@@ -287,18 +391,39 @@ def _start(residual, theta0, lo, hi, data, cov0, free, noise):
             var.append(np.array([min(1.0 / (n.sum() * (1.0 - rho * rho)), MAX_U_VAR)]))
         dv = np.concatenate(var)
         M = np.zeros((Kf + dv.size, Kf + dv.size))
-        M[:Kf, :Kf] = _clip_cov(cu)
+        M[:Kf, :Kf] = _clip_cov(cu, cap)
         M[Kf:, Kf:] = np.diag(dv)
         z0.append(np.concatenate(zi))
         imm.append(M)
         soft.append(d)
-    return np.stack(z0), np.stack(imm), np.stack(soft)
+        held_all.append(held_mask)
+    return np.stack(z0), np.stack(imm), np.stack(soft), lo, hi, np.stack(held_all)
+
+
+def _in_box(theta0: np.ndarray, cov: np.ndarray, lo: np.ndarray,
+            hi: np.ndarray) -> np.ndarray | None:
+    """Host: `START_DRAWS` draws of the Gaussian N(theta0, cov) that fall in the box, (S, K),
+    or None where too few do (or `cov` is not finite). Near a bound the Gaussian of the
+    Jacobian is cut: on a UTFSM test of modified Bouc-Wen, gamma 6 N/m below its bound with
+    a 950 /m standard deviation along a beta-gamma ridge, the bound cuts the ridge; the
+    spread and correlations of the draws that remain, mapped into the sampler's `u`, are
+    what the chains meet (the delta method at the optimum, with `u`'s variance capped, gave
+    a start mass matrix that NUTS crossed in trees of 1,023 steps)."""
+    K = theta0.size
+    if K == 0 or not np.all(np.isfinite(cov)):
+        return None
+    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = V * np.sqrt(np.maximum(w, 0.0))
+    rng = np.random.default_rng(0)  # host start values: the same every call
+    X = theta0 + rng.standard_normal((START_DRAWS, K)) @ root.T
+    X = X[np.all((X > lo) & (X < hi), axis=1)]
+    return X if X.shape[0] >= max(10 * K, 100) else None
 
 
 def _softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """The bounded map's softness `d` (Kf,) [SI]: `SOFTNESS` x the starting standard deviation
     of each unknown, within [1e-9, 1] x its box width (the box width where undefined)."""
-    w = hi - lo
+    w = np.where(hi > lo, hi - lo, 1.0)  # a point box (a held unknown): any softness
     if cov is None:
         return w
     with np.errstate(invalid="ignore"):
@@ -307,10 +432,10 @@ def _softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndar
     return np.where(ok, np.clip(SOFTNESS * np.where(ok, sd, 0.0), 1e-9 * w, w), w)
 
 
-def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
+def _u_cov(cov: np.ndarray | None, slope: np.ndarray, cap: np.ndarray) -> np.ndarray:
     """The covariance of the bounded map's `u` from a covariance of theta (delta method,
     `slope` the map's d theta / du), `FALLBACK_U_VAR` where it is undefined, variances capped
-    at `MAX_U_VAR`."""
+    at `cap` (K,)."""
     K = slope.size
     g = np.where(slope > 0, slope, 1.0)
     if cov is None:
@@ -318,7 +443,7 @@ def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
     c = np.asarray(cov, float) / np.outer(g, g)
     var = np.diag(c).copy()
     ok = np.isfinite(var) & (var > 0)
-    var = np.where(ok, np.minimum(var, MAX_U_VAR), FALLBACK_U_VAR)
+    var = np.where(ok, np.minimum(var, cap), FALLBACK_U_VAR)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = c / np.sqrt(np.outer(np.diag(c), np.diag(c)))
     good = np.outer(ok, ok) & np.isfinite(corr)
@@ -328,15 +453,15 @@ def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
     return corr * np.outer(sd, sd)
 
 
-def _clip_cov(c: np.ndarray) -> np.ndarray:
+def _clip_cov(c: np.ndarray, cap: np.ndarray) -> np.ndarray:
     """A symmetric positive-definite matrix near `c`: eigenvalues floored at 1e-8 of the largest,
-    variances capped at `MAX_U_VAR`."""
+    variances capped at `cap` (K,)."""
     c = 0.5 * (c + c.T)
     w, V = np.linalg.eigh(c)
     w = np.maximum(w, 1e-8 * max(float(w.max()), 1e-300))
     c = (V * w) @ V.T
     d = np.sqrt(np.diag(c))
-    scale = np.minimum(1.0, np.sqrt(MAX_U_VAR) / d)
+    scale = np.minimum(1.0, np.sqrt(cap) / d)
     return c * np.outer(scale, scale)
 
 
@@ -351,7 +476,6 @@ def sample(
     names: Sequence[str],
     labels: Sequence[str] | None = None,
     row_labels: Sequence[str] | None = None,
-    cov0: ArrayLike | None = None,
     sampler: Sampler | None = None,
     noise: str = "iid",
     prior: Mapping[str, Any] | None = None,
@@ -360,6 +484,7 @@ def sample(
     progress: bool | None = False,
     unit_dim: str = "condition",
     units: Sequence[str] | None = None,
+    gauge: Sequence[str] = (),
 ) -> Posterior:
     """Sample the posterior of a residual function's unknowns with NUTS, on every unit at once.
 
@@ -377,8 +502,6 @@ def sample(
     - `labels`: (U,) unit labels (coordinates of `unit_dim`); default `"0"`, `"1"`, ...
     - `row_labels`: names of the R records of a unit (coordinates of `noise_sigma`'s `record`
         dim where R > 1).
-    - `cov0`: (U, K, K) the Jacobian covariance at the optimum (NaN where undefined), for the
-        starting inverse mass matrix and the chains' starting spread; None: a default spread.
     - `sampler`: :class:`Sampler` settings (draws, chains, warmup, ...).
     - `noise`: `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`).
     - `prior`: {name: prior} (see `mrjax.bayes.parse_prior`); default flat on the box.
@@ -387,6 +510,15 @@ def sample(
     - `progress`: a tqdm bar over warmup + draws (None: only on a TTY).
     - `unit_dim`: the name of the unit dimension in the posterior (`"condition"`).
     - `units`: (K,) SI units of the unknowns, for the tables.
+    - `gauge`: names of the unknowns to hold first where the data leave a direction
+        undetermined (see below), e.g. `("delta",)` for the Bouc-Wen models' z scale.
+
+    The chains start around `theta0` with the inverse mass matrix of the Gauss-Newton
+    covariance of the residuals there (Jacobian by forward mode, on the likelihood's own
+    data). Where that covariance spans more than the box in some direction of the unknowns (a
+    symmetry of the model, or an unknown these records do not inform), one unknown per such
+    direction is held at `theta0` in that unit (its `lower == upper` in the result, listed by
+    `Posterior.problems`): the others' posterior is conditional on it.
 
     **Returns:** a :class:`mrjax.bayes.Posterior`.
 
@@ -416,16 +548,15 @@ def sample(
     labels = tuple(str(s) for s in labels) if labels is not None else tuple(map(str, range(U)))
     if len(labels) != U:
         raise InputError(f"{len(labels)} labels for {U} units")
-    if cov0 is not None:
-        cov0 = np.asarray(cov0, float)
-        if cov0.shape != (U, K, K):
-            raise InputError(f"cov0 must be ({U}, {K}, {K}), got {cov0.shape}")
     shapes = jax.eval_shape(residual, jnp.asarray(theta0[0]),
                             jax.tree.map(lambda x: x[0], data))
     rows = tuple(int(s[0].shape[0]) for s in shapes)
     target = _Target(residual=residual, free=free, rows=rows, noise=noise,
                      forward=sampler.gradient == "forward")
-    z0, imm, soft = _start(residual, theta0, lo[:, free], hi[:, free], data, cov0, free, noise)
+    z0, imm, soft, lo_f, hi_f, _ = _start(residual, theta0, lo[:, free], hi[:, free], data,
+                                          free, noise, names, tuple(gauge))
+    lo, hi = lo.copy(), hi.copy()
+    lo[:, free], hi[:, free] = lo_f, hi_f
     # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
     # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
     # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
@@ -443,8 +574,9 @@ def sample(
     if show:
         from tqdm.auto import tqdm  # imported here: only a shown bar needs it
 
-        total = (sampler.warmup + sampler.draws) * (1 if vectorized(sampler) else
-                                                     U * sampler.chains)
+        mode = vectorized(sampler)
+        total = (sampler.warmup + sampler.draws) * {"all": 1, "chains": U}.get(
+            mode, U * sampler.chains)
         bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
                    leave=False, file=sys.stderr)
         _BAR[0] = bar
