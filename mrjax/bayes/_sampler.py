@@ -45,9 +45,9 @@ from ._priors import box_slope, check_priors, from_box, log_jacobian, log_prior,
 from ._result import Posterior
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
-#: (its softness is then its box width, and a posterior that fills the box spans a few units
-#: of `u`); no unknown's starting variance is above its box width in `u`, (W / d)^2, or this
-#: where that is smaller.
+#: (not identifiable, or at a bound: its softness is then its box width, and a posterior that
+#: fills the box or piles against a bound spans a few units of `u`), and the most any
+#: unknown's starting variance may be.
 FALLBACK_U_VAR = 1.0
 MAX_U_VAR = 4.0
 #: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
@@ -375,8 +375,7 @@ def _start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
             cov[np.ix_(keep, keep)] = np.cov(X, rowvar=False)
         d = _softness(cov, lo[i], hi[i])
         u0 = from_box(theta0[i, idx], lo[i], hi[i], d)
-        cap = np.maximum(((hi[i] - lo[i]) / d) ** 2, MAX_U_VAR)
-        cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d), cap)
+        cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d))
         if X is not None:
             cu[np.ix_(keep, keep)] = np.cov(from_box(X, lo[i, keep], hi[i, keep], d[keep]),
                                             rowvar=False)
@@ -391,7 +390,7 @@ def _start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
             var.append(np.array([min(1.0 / (n.sum() * (1.0 - rho * rho)), MAX_U_VAR)]))
         dv = np.concatenate(var)
         M = np.zeros((Kf + dv.size, Kf + dv.size))
-        M[:Kf, :Kf] = _clip_cov(cu, cap)
+        M[:Kf, :Kf] = _clip_cov(cu)
         M[Kf:, Kf:] = np.diag(dv)
         z0.append(np.concatenate(zi))
         imm.append(M)
@@ -432,10 +431,10 @@ def _softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndar
     return np.where(ok, np.clip(SOFTNESS * np.where(ok, sd, 0.0), 1e-9 * w, w), w)
 
 
-def _u_cov(cov: np.ndarray | None, slope: np.ndarray, cap: np.ndarray) -> np.ndarray:
+def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
     """The covariance of the bounded map's `u` from a covariance of theta (delta method,
     `slope` the map's d theta / du), `FALLBACK_U_VAR` where it is undefined, variances capped
-    at `cap` (K,)."""
+    at `MAX_U_VAR`."""
     K = slope.size
     g = np.where(slope > 0, slope, 1.0)
     if cov is None:
@@ -443,7 +442,7 @@ def _u_cov(cov: np.ndarray | None, slope: np.ndarray, cap: np.ndarray) -> np.nda
     c = np.asarray(cov, float) / np.outer(g, g)
     var = np.diag(c).copy()
     ok = np.isfinite(var) & (var > 0)
-    var = np.where(ok, np.minimum(var, cap), FALLBACK_U_VAR)
+    var = np.where(ok, np.minimum(var, MAX_U_VAR), FALLBACK_U_VAR)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = c / np.sqrt(np.outer(np.diag(c), np.diag(c)))
     good = np.outer(ok, ok) & np.isfinite(corr)
@@ -453,15 +452,15 @@ def _u_cov(cov: np.ndarray | None, slope: np.ndarray, cap: np.ndarray) -> np.nda
     return corr * np.outer(sd, sd)
 
 
-def _clip_cov(c: np.ndarray, cap: np.ndarray) -> np.ndarray:
+def _clip_cov(c: np.ndarray) -> np.ndarray:
     """A symmetric positive-definite matrix near `c`: eigenvalues floored at 1e-8 of the largest,
-    variances capped at `cap` (K,)."""
+    variances capped at `MAX_U_VAR`."""
     c = 0.5 * (c + c.T)
     w, V = np.linalg.eigh(c)
     w = np.maximum(w, 1e-8 * max(float(w.max()), 1e-300))
     c = (V * w) @ V.T
     d = np.sqrt(np.diag(c))
-    scale = np.minimum(1.0, np.sqrt(cap) / d)
+    scale = np.minimum(1.0, np.sqrt(MAX_U_VAR) / d)
     return c * np.outer(scale, scale)
 
 
