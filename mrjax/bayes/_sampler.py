@@ -51,14 +51,14 @@ from ._result import Posterior
 FALLBACK_U_VAR = 1.0
 MAX_U_VAR = 4.0
 #: The bounded map's softness `d` (`mrjax.bayes.to_box`) is this fraction of an unknown's
-#: starting standard deviation (the Jacobian Gaussian's, cut by the box, widened for AR(1)
-#: noise), at most the box width (the box width where it is undefined): the map is linear
-#: over the posterior's bulk unless that reaches within a few `d` of a bound. A posterior
-#: ridge that reaches into the map's curved zone is bent there, which a dense mass matrix
-#: cannot follow (modified Bouc-Wen on a UTFSM test, beta and gamma correlated -1.00 with
-#: gamma 6 /m below its bound: step sizes of 0.01 in the whitened coordinates at 0.5 and
-#: 0.1, 0.03-0.2 at 0.02 but trees still of hundreds of steps, 10 warmup steps each);
-#: 0.5 is the value of the tanh and Dahl calibration (0 divergences in 200,000 draws each).
+#: starting standard deviation (the Gauss-Newton one, widened for AR(1) noise), at most the
+#: box width (the box width where it is undefined): the map is linear over the posterior's
+#: bulk unless that reaches within a few `d` of a bound. A posterior ridge that reaches into
+#: the map's curved zone is bent there, which a dense mass matrix cannot follow (modified
+#: Bouc-Wen on a UTFSM test, beta and gamma correlated -1.00 with gamma 6 /m below its
+#: bound: step sizes of 0.01 in the whitened coordinates at 0.5 and 0.1, 0.03-0.2 at 0.02
+#: but trees still of hundreds of steps, 10 warmup steps each); 0.5 is the value of the
+#: tanh and Dahl calibration (0 divergences in 200,000 draws each).
 SOFTNESS = 0.5
 #: Chains start at the optimum plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the optimum).
@@ -69,8 +69,6 @@ UNDETERMINED = 1.0
 #: A `gauge` unknown is held for an undetermined direction where its component (in box
 #: widths) is at least this share of the largest one.
 GAUGE_SHARE = 0.1
-#: Draws of the Jacobian Gaussian that shape the start where the box cuts it (`_in_box`).
-START_DRAWS = 4000
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
 #: one unit at a time, or none (one chain after another).
 VECTORIZE: tuple[str, ...] = ("all", "chains", "none")
@@ -370,15 +368,9 @@ def _start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
         Hk = H[np.ix_(keep, keep)]
         if keep.size and np.all(np.isfinite(Hk)):
             cov[np.ix_(keep, keep)] = np.linalg.pinv(Hk, rcond=1e-12, hermitian=True)
-        X = _in_box(theta0[i, idx[keep]], cov[np.ix_(keep, keep)], lo[i, keep], hi[i, keep])
-        if X is not None:  # the Gaussian cut by the box: its spread, then in `u`
-            cov[np.ix_(keep, keep)] = np.cov(X, rowvar=False)
         d = _softness(cov, lo[i], hi[i])
         u0 = from_box(theta0[i, idx], lo[i], hi[i], d)
         cu = _u_cov(cov, box_slope(u0, lo[i], hi[i], d))
-        if X is not None:
-            cu[np.ix_(keep, keep)] = np.cov(from_box(X, lo[i, keep], hi[i, keep], d[keep]),
-                                            rowvar=False)
         point = hi[i] <= lo[i]  # held: `u` a nuisance of logistic density (variance pi^2 / 3)
         cu[point, :] = cu[:, point] = 0.0
         cu[point, point] = np.pi ** 2 / 3.0
@@ -397,26 +389,6 @@ def _start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
         soft.append(d)
         held_all.append(held_mask)
     return np.stack(z0), np.stack(imm), np.stack(soft), lo, hi, np.stack(held_all)
-
-
-def _in_box(theta0: np.ndarray, cov: np.ndarray, lo: np.ndarray,
-            hi: np.ndarray) -> np.ndarray | None:
-    """Host: `START_DRAWS` draws of the Gaussian N(theta0, cov) that fall in the box, (S, K),
-    or None where too few do (or `cov` is not finite). Near a bound the Gaussian of the
-    Jacobian is cut: on a UTFSM test of modified Bouc-Wen, gamma 6 N/m below its bound with
-    a 950 /m standard deviation along a beta-gamma ridge, the bound cuts the ridge; the
-    spread and correlations of the draws that remain, mapped into the sampler's `u`, are
-    what the chains meet (the delta method at the optimum, with `u`'s variance capped, gave
-    a start mass matrix that NUTS crossed in trees of 1,023 steps)."""
-    K = theta0.size
-    if K == 0 or not np.all(np.isfinite(cov)):
-        return None
-    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
-    root = V * np.sqrt(np.maximum(w, 0.0))
-    rng = np.random.default_rng(0)  # host start values: the same every call
-    X = theta0 + rng.standard_normal((START_DRAWS, K)) @ root.T
-    X = X[np.all((X > lo) & (X < hi), axis=1)]
-    return X if X.shape[0] >= max(10 * K, 100) else None
 
 
 def _softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

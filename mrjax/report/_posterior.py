@@ -30,9 +30,9 @@ def spread(post: Any) -> np.ndarray:
 
 
 def plot_posterior_pair(post: Any, index: int | None = None) -> Figure:
-    """Pair plot of one unit's posterior: histograms of every sampled parameter on the diagonal,
-    draws of each pair below it (divergent transitions in red), the optimum the chains started
-    from as a cross.
+    """Pair plot of one unit's posterior: histograms of every sampled parameter (not those held,
+    named in the title) on the diagonal, draws of each pair below it (divergent transitions in
+    red), the optimum the chains started from as a cross.
 
     **Arguments:** `post` a `mrjax.bayes.Posterior`; `index` the unit (default the
     least-determined one, largest :func:`spread`).
@@ -40,7 +40,9 @@ def plot_posterior_pair(post: Any, index: int | None = None) -> Figure:
     **Returns:** the figure.
     """
     i = int(np.argmax(spread(post))) if index is None else int(index)
-    free = np.flatnonzero(np.asarray(post.free))
+    held = np.asarray(getattr(post, "held", np.zeros((len(post.labels), len(post.names)),
+                                                      bool)))[i]
+    free = np.flatnonzero(np.asarray(post.free) & ~held)
     names = [post.names[j] for j in free]
     d = np.asarray(post.theta, float)[i].reshape(-1, len(post.names))[:, free]
     div = np.asarray(post.diverging, bool)[i].reshape(-1)
@@ -73,8 +75,9 @@ def plot_posterior_pair(post: Any, index: int | None = None) -> Figure:
                 ax.set_ylabel(names[a], fontsize=8)
             elif b > 0:
                 ax.set_yticklabels([])
+    fixed = "".join(f"; {post.names[j]} held" for j in np.flatnonzero(held))
     fig.suptitle(f"posterior of {post.labels[i]!r} (least determined; {int(div.sum())} "
-                 f"divergent; + the polished optimum)", fontsize=10)
+                 f"divergent; + the polished optimum{fixed})", fontsize=10)
     return fig
 
 
