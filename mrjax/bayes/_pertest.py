@@ -298,8 +298,9 @@ def posterior(
 
     **Arguments:**
 
-    - `result`: a `mrjax.fit` result (the polished optimum; its Jacobian covariance, if
-        computed, starts the mass matrix).
+    - `result`: a `mrjax.fit` result (the polished optimum the chains start around; the mass
+        matrix starts from the Gauss-Newton covariance on the likelihood's data, see
+        `mrjax.bayes.sample`).
     - `data`: the conditions it was fitted on (same labels), as `mrjax.fit` takes them.
     - `draws`, `chains`, `warmup`: kept draws per chain, chains per condition, adaptation
         steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three, and the

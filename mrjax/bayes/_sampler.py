@@ -11,7 +11,8 @@ box. :func:`sample` builds one log-density per unit (the Gaussian likelihood of
 coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded map
 `to_box` with its log-Jacobian), adapts step size and mass matrix with
 `blackjax.window_adaptation` (Stan's windows) from chains started around the polished optimum
-with an inverse mass matrix from its Jacobian covariance, and draws with `blackjax.nuts` in a
+with an inverse mass matrix from the Gauss-Newton covariance of the residuals there (one
+unknown held per direction the data leave undetermined), and draws with `blackjax.nuts` in a
 `lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
 after another or a unit's chains at once on a CPU, vmapped on an accelerator: see
 `Sampler.vectorize`).
