@@ -415,6 +415,15 @@ def _u_cov(cov: np.ndarray | None, slope: np.ndarray) -> np.ndarray:
     c = np.asarray(cov, float) / np.outer(g, g)
     var = np.diag(c).copy()
     ok = np.isfinite(var) & (var > 0)
+    big = ok & (var > MAX_U_VAR)
+    if big.any() and np.all(np.isfinite(c[np.ix_(ok, ok)])):
+        # shrink the long axes, not the variances one by one: a variance cut while its
+        # correlations stay makes a thin ridge (near a bound, where the map's slope is small)
+        # a wide one across (modified Bouc-Wen: a start 100x too wide across beta-gamma)
+        sub = c[np.ix_(ok, ok)]
+        w, V = np.linalg.eigh(0.5 * (sub + sub.T))
+        c[np.ix_(ok, ok)] = (V * np.clip(w, 0.0, MAX_U_VAR)) @ V.T
+        var = np.where(ok, np.diag(c), var)
     var = np.where(ok, np.minimum(var, MAX_U_VAR), FALLBACK_U_VAR)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = c / np.sqrt(np.outer(np.diag(c), np.diag(c)))
