@@ -84,6 +84,53 @@ def test_core_matches_least_squares_posterior():
     assert d["r_hat_max"] < 1.02 and d["divergences"] == 0
 
 
+def test_start_is_the_posterior_mode_with_its_hessian():
+    """The chains start at the posterior's mode, not at the optimum they are given: a normal
+    prior on a, 3 std-errors off the least-squares value, moves the mode to the penalised least
+    squares with s^2 = RSS / n (a fixed point, solved here in closed form per s); the start's
+    covariance is the inverse of the exact Hessian of (a, b, log s) there."""
+    from mrjax.bayes import _sampler as core  # noqa: SLF001 - the start is internal
+
+    data, _ = line_data()
+    est, se, _ = ols(data)
+    mu, tau = est[:, 0] + 3.0 * se[:, 0], se[:, 0]
+    names, K = ("a", "b"), 2
+    lo, hi = np.full((2, K), -10.0), np.full((2, K), 10.0)
+    for i in range(2):
+        t, y, _ = (np.asarray(d[i], float) for d in data)
+        X, n, P = np.column_stack([np.ones_like(t), t]), t.size, np.diag([1 / tau[i] ** 2, 0])
+        beta, s2 = est[i], 1.0
+        for _ in range(200):  # the joint mode: beta given s, then s given beta
+            beta = np.linalg.solve(X.T @ X / s2 + P, X.T @ y / s2 + P @ [mu[i], 0.0])
+            s2 = np.sum((X @ beta - y) ** 2) / n
+        r = X @ beta - y
+        H = np.zeros((3, 3))  # -Hessian of the log density in (a, b, log s)
+        H[:2, :2] = X.T @ X / s2 + P
+        H[:2, 2] = H[2, :2] = -2.0 * X.T @ r / s2
+        H[2, 2] = 2.0 * n
+        prior = {"a": Normal(float(mu[i]), float(tau[i]))}
+        kind, a, b, lo_i, hi_i = core.prior_arrays(core.check_priors(prior, names), names,
+                                                    lo[i:i + 1], hi[i:i + 1])
+        unit = jax.tree.map(lambda d: jnp.asarray(d[i:i + 1]), data)
+        z0, imm, soft, lo_f, hi_f, _ = core._start(Line(), est[i:i + 1], lo_i, hi_i, unit,
+                                                   (0, 1), "iid", names)
+        target = core._Target(residual=Line(), free=(0, 1), rows=(1,), noise="iid")
+        units = (unit, jnp.asarray(lo_f), jnp.asarray(hi_f), jnp.asarray(soft),
+                 jnp.asarray(est[i:i + 1]))
+        L = np.linalg.cholesky(imm)
+        found = jax.device_get(core._mode(target, tuple(map(jnp.asarray, (kind, a, b))),
+                                          units, jnp.asarray(z0), jnp.asarray(L)))
+        assert found[1][0] > found[2][0] + 1.0  # it climbed (from the least-squares start)
+        z, L2 = core._laplace(*found, z0, L)
+        th = np.asarray(to_box(z[0, :2], lo_f[0], hi_f[0], soft[0]))
+        np.testing.assert_allclose(th, beta, rtol=0, atol=1e-4 * se[i].min())
+        np.testing.assert_allclose(np.exp(z[0, 2]), np.sqrt(s2), rtol=1e-6)
+        # in z = (u, log s) the map is linear inside the box: d theta / du = softness
+        g = np.append(soft[0], 1.0)
+        cov = np.linalg.inv(H) / np.outer(g, g)
+        np.testing.assert_allclose(L2[0] @ L2[0].T, cov, rtol=1e-4, atol=1e-9 * cov.max())
+
+
 def test_core_ar1_recovers_rho_and_widens_intervals():
     """AR(1) noise with rho = 0.8: the ar1 likelihood covers rho and gives intervals about
     sqrt((1 + rho) / (1 - rho)) = 3 x the iid ones (for the slope of a line through

@@ -298,9 +298,9 @@ def posterior(
 
     **Arguments:**
 
-    - `result`: a `mrjax.fit` result (the polished optimum the chains start around; the mass
-        matrix starts from the Gauss-Newton covariance on the likelihood's data, see
-        `mrjax.bayes.sample`).
+    - `result`: a `mrjax.fit` result (the polished optimum the search for the posterior's
+        mode starts from; the chains start around the mode, with the inverse Hessian there as
+        mass matrix, see `mrjax.bayes.sample`).
     - `data`: the conditions it was fitted on (same labels), as `mrjax.fit` takes them.
     - `draws`, `chains`, `warmup`: kept draws per chain, chains per condition, adaptation
         steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three, and the

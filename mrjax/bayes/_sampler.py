@@ -10,8 +10,9 @@ box. :func:`sample` builds one log-density per unit (the Gaussian likelihood of
 `mrjax.bayes.block_loglik` with one noise level per record and, for `noise="ar1"`, one AR(1)
 coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded map
 `to_box` with its log-Jacobian), adapts step size and mass matrix with
-`blackjax.window_adaptation` (Stan's windows) from chains started around the polished optimum
-with an inverse mass matrix from the Gauss-Newton covariance of the residuals there (one
+`blackjax.window_adaptation` (Stan's windows) from chains started around the posterior's mode
+with an inverse mass matrix from the Hessian there (found by damped Newton from the polished
+optimum, in the coordinates of the Gauss-Newton covariance of the residuals there; one
 unknown held per direction the data leave undetermined), and draws with `blackjax.nuts` in a
 `lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
 after another or a unit's chains at once on a CPU, vmapped on an accelerator: see
@@ -160,8 +161,9 @@ def _forward_values(residual: Callable, theta, data):
     @f.defjvp
     def f_jvp(primals, tangents):
         (th,), (dth,) = primals, tangents
-        J = jax.jacfwd(values)(th)
-        return values(th), tuple(j @ dth for j in J)
+        # the values from the same forward pass as the Jacobian (a second pass cost 2.2 of 9 ms)
+        J, vals = jax.jacfwd(lambda t: (values(t), values(t)), has_aux=True)(th)
+        return vals, tuple(j @ dth for j in J)
 
     return f(theta)
 
@@ -291,6 +293,85 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
 
 
 # ------------------------------------------------------------------------------ the start
+#: Damped Newton steps of the mode search that moves the start onto the posterior's mode
+#: (`_mode`), and its stop: the Newton decrement g^T H^-1 g / 2 below this many log-density
+#: units.
+MODE_STEPS = 25
+MODE_TOL = 1e-3
+#: Step of the central differences of the gradient that give the Hessian at the mode, in the
+#: whitened coordinates of the Gauss-Newton start (where the posterior spans O(1)).
+HESS_STEP = 1e-4
+#: Eigenvalues of the mode's covariance, in those coordinates, are kept within these bounds
+#: (the narrowest direction measured on a UTFSM test was 2e-3, the widest 80).
+MODE_EIG = (1e-6, 1e3)
+
+
+@eqx.filter_jit
+def _mode(target, prior, units, z0, L):
+    """Each unit's posterior mode and the Hessian of the log-density there, in the whitened
+    coordinates `w` of the start (`z = z0 + L w`), by damped Newton from `w = 0`: the Hessian
+    by central differences of the gradient (`HESS_STEP`), |eigenvalues| floored, a
+    Levenberg damping raised where a step does not climb. Returns `(w, logdensity at w,
+    logdensity at 0, negative Hessian)` per unit."""
+
+    def one(unit, z, m):
+        ld = lambda w: _logdensity(target, prior, unit, z + m @ w)
+        grad = jax.grad(ld)
+        D = z.shape[0]
+        eye = jnp.eye(D, dtype=z.dtype)
+
+        def neg_hess(w):
+            pts = jnp.concatenate([w + HESS_STEP * eye, w - HESS_STEP * eye])
+            g = jax.vmap(grad)(pts)
+            H = -(g[:D] - g[D:]) / (2.0 * HESS_STEP)
+            H = 0.5 * (H + H.T)
+            return jnp.where(jnp.isfinite(H), H, 0.0)
+
+        def cond(c):
+            k, _, _, _, dec = c
+            return (k < MODE_STEPS) & (dec > MODE_TOL)
+
+        def body(c):
+            k, w, f, lam, _ = c
+            g = grad(w)
+            g = jnp.where(jnp.isfinite(g), g, 0.0)
+            e, V = jnp.linalg.eigh(neg_hess(w))
+            e = jnp.maximum(jnp.abs(e), MODE_EIG[0])
+            gv = V.T @ g
+            dw = V @ (gv / (e + lam))
+            f_new = ld(w + dw)
+            up = jnp.isfinite(f_new) & (f_new >= f)
+            dec = jnp.where(up, 0.5 * jnp.sum(gv * gv / e), jnp.inf)
+            return (k + 1, jnp.where(up, w + dw, w), jnp.where(up, f_new, f),
+                    jnp.where(up, lam / 4.0, 4.0 * lam + 1e-3), dec)
+
+        w0 = jnp.zeros_like(z)
+        f0 = ld(w0)
+        _, w, f, _, _ = jax.lax.while_loop(
+            cond, body, (jnp.zeros((), jnp.int32), w0, f0, jnp.asarray(1e-3, z.dtype),
+                         jnp.asarray(jnp.inf, z.dtype)))
+        return w, f, f0, neg_hess(w)
+
+    return jax.vmap(one)(units, z0, L)
+
+
+def _laplace(w, f, f0, H, z0, L):
+    """Host: the start moved onto the mode and its covariance from the Hessian there (in the
+    whitened coordinates, eigenvalues within `MODE_EIG`); a unit whose search did not climb
+    or whose Hessian is not finite keeps the Gauss-Newton start. Returns `(z0, L)`."""
+    w, f, f0, H, z0, L = (np.asarray(a, float) for a in (w, f, f0, H, z0, L))
+    z0, L = z0.copy(), L.copy()
+    for i in range(z0.shape[0]):
+        if not (np.isfinite(f[i]) and f[i] >= f0[i] and np.all(np.isfinite(H[i]))
+                and np.all(np.isfinite(w[i]))):
+            continue
+        e, V = np.linalg.eigh(0.5 * (H[i] + H[i].T))
+        var = np.clip(1.0 / np.maximum(e, 1.0 / MODE_EIG[1]), *MODE_EIG)
+        z0[i] = z0[i] + L[i] @ w[i]
+        L[i] = L[i] @ np.linalg.cholesky((V * var) @ V.T)
+    return z0, L
+
+
 @eqx.filter_jit
 def _linearize(residual, free: tuple[int, ...], theta0, data):
     """Every unit's residual blocks, masks and their Jacobian in the free unknowns at the
@@ -494,12 +575,18 @@ def sample(
     - `gauge`: names of the unknowns to hold first where the data leave a direction
         undetermined (see below), e.g. `("delta",)` for the Bouc-Wen models' z scale.
 
-    The chains start around `theta0` with the inverse mass matrix of the Gauss-Newton
-    covariance of the residuals there (Jacobian by forward mode, on the likelihood's own
-    data). Where that covariance spans more than the box in some direction of the unknowns (a
-    symmetry of the model, or an unknown these records do not inform), one unknown per such
-    direction is held at `theta0` in that unit (its `lower == upper` in the result, listed by
-    `Posterior.problems`): the others' posterior is conditional on it.
+    The start is built from `theta0` and the Gauss-Newton covariance of the residuals there
+    (Jacobian by forward mode, on the likelihood's own data). Where that covariance spans more
+    than the box in some direction of the unknowns (a symmetry of the model, or an unknown
+    these records do not inform), one unknown per such direction is held at `theta0` in that
+    unit (its `lower == upper` in the result, listed by `Posterior.problems`): the others'
+    posterior is conditional on it. A damped Newton search (`MODE_STEPS`) then moves the start
+    from `theta0`, the least-squares optimum of the fit's data, to the mode of this posterior
+    (the noise model, the prior and the soft box move it), and the chains start around the
+    mode with the inverse of the log-density's Hessian there as their mass matrix (modified
+    Bouc-Wen on a UTFSM view with AR(1) noise: the start was 670 log-density units below the
+    mode, and 150 warmup steps of one chain took 69,114 gradients from it, 3,090 from the
+    mode). `Posterior.timings["mode"]` is its time [s].
 
     **Returns:** a :class:`mrjax.bayes.Posterior`.
 
@@ -542,13 +629,20 @@ def sample(
     # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
     # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
     L = np.linalg.cholesky(imm)
+    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(soft),
+                  jnp.asarray(theta0))
+    prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
+    t0 = time.perf_counter()
+    # the polished optimum is the least-squares one on the fit's data, not the mode of this
+    # posterior (AR(1) noise, the view, the soft box): a damped Newton search moves the start
+    # there, and the Hessian there replaces the Gauss-Newton metric
+    z0, L = _laplace(*jax.device_get(_mode(target, prior_data, units_data, jnp.asarray(z0),
+                                           jnp.asarray(L))), z0, L)
+    t_mode = time.perf_counter() - t0
     if key is None:
         key = jax.random.key(int(seed))
     keys = jax.vmap(lambda i: jax.random.split(jax.random.fold_in(key, i), sampler.chains))(
         jnp.arange(U))
-    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(soft),
-                  jnp.asarray(theta0))
-    prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
     show = sys.stderr.isatty() if progress is None else bool(progress)
     t0 = time.perf_counter()
     bar = None
@@ -570,7 +664,7 @@ def sample(
         if bar is not None:
             bar.close()
     theta, sigma, rho, (lp, div, steps, acc), step_size, _ = out
-    wall = time.perf_counter() - t0
+    wall = time.perf_counter() - t0 + t_mode
     desc = {n: p.describe() for n, p in priors.items()}
     return Posterior(
         names=names, labels=labels, row_labels=None if row_labels is None else
@@ -580,5 +674,5 @@ def sample(
         diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
         accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
         theta0=theta0, lower=lo, upper=hi, free=np.isin(np.arange(K), free), noise=noise,
-        prior=desc, sampler=sampler, seed=int(seed), timings={"sample": wall},
+        prior=desc, sampler=sampler, seed=int(seed), timings={"sample": wall, "mode": t_mode},
         param_units=None if units is None else tuple(units))
