@@ -3,6 +3,7 @@
     nice -n 10 python -m benchmarks.posterior calibration [--records 50]
     nice -n 10 python -m benchmarks.posterior speed [--mbw-all]
     nice -n 10 python -m benchmarks.posterior views
+    python -m benchmarks.posterior mbw-tests [--draws 200 --jobs 2]   # MBW, each UTFSM test
     python -m benchmarks.posterior render          # posterior.md from posterior.json
 
 1. **Calibration** (known answer, in one process): `--records` short sine records (1-2 Hz,
@@ -19,7 +20,9 @@
    AR(1)); modified Bouc-Wen on one UTFSM test (and, with `--mbw-all`, the 30); leapfrog
    steps per draw; and the cost of one gradient of the log-likelihood against one force
    evaluation (warm medians).
-3. **Record or view**: the same posteriors on the full records and on the swarm's view
+3. **Modified Bouc-Wen on each UTFSM test** (`mbw-tests`): one cold process per test
+   (AR(1), the view, 4 chains x (`--draws` + `--draws`)), `--jobs` at a time.
+4. **Record or view**: the same posteriors on the full records and on the swarm's view
    (cost, and the ratio of the 95 % interval widths).
 
 Writes `benchmarks/posterior.json` (sections merged) and `benchmarks/posterior.md`.
@@ -47,6 +50,8 @@ OUT_MD = HERE / "posterior.md"
 SAMPLES_PER_CYCLE = 160
 #: Excitation cycles of each calibration record.
 CYCLES = 2.0
+#: How the chains of a speed row start (rows measured before the mode search carry their own).
+START = "mode"
 #: Where the fits of the UTFSM tests are kept between cases (not in the repository: data-derived).
 CACHE = Path(os.environ.get("MRJAX_BENCH_CACHE", "/tmp/mrjax-bench-posterior"))
 
@@ -60,6 +65,40 @@ def utfsm() -> Path:
     if not Path(d).is_dir():
         d = "/work/shared/data/utfsm"
     return Path(d)
+
+
+def mbw_tests(draws: int, jobs: int, limit_s: float = 900.0) -> list[dict[str, Any]]:
+    """The modified Bouc-Wen posterior of each UTFSM test in its own cold process (AR(1), the
+    view, 4 chains x (`draws` warmup + `draws`)), `jobs` processes at a time; a test not done
+    within `limit_s` is reported without a row."""
+    res, _, _ = cached_fit("modified_bouc_wen")
+    todo, running, rows = list(res.labels), [], []
+    env = dict(os.environ, MRJAX_CACHE_DIR="off", JAX_PLATFORMS="cpu")
+    while todo or running:
+        while todo and len(running) < jobs:
+            lab = todo.pop(0)
+            argv = [sys.executable, "-m", "benchmarks.posterior", "case", "--model",
+                    "modified_bouc_wen", "--tests", lab, "--noise", "ar1", "--draws",
+                    str(draws), "--warmup", str(draws)]
+            p = subprocess.Popen(argv, cwd=HERE.parent, env=env, stdout=subprocess.PIPE,
+                                 stderr=subprocess.DEVNULL, text=True)
+            running.append((lab, p, time.perf_counter(), os.getloadavg()[0]))
+        time.sleep(2.0)
+        for item in list(running):
+            lab, p, t0, load0 = item
+            late = time.perf_counter() - t0 > limit_s
+            if p.poll() is None and not late:
+                continue
+            if late and p.poll() is None:
+                p.kill()
+            out = p.communicate()[0]
+            lines = out.strip().splitlines()
+            row = json.loads(lines[-1]) if p.returncode == 0 and lines else None
+            rows.append({"label": lab, "rc": p.returncode, "load": [load0, os.getloadavg()[0]],
+                         "row": row})
+            log(f"{lab}: " + (f"{row['posterior_s']:.0f} s" if row else "not finished"))
+            running.remove(item)
+    return rows
 
 
 # ------------------------------------------------------------------------------ one cold case
@@ -408,10 +447,10 @@ def render(doc: dict[str, Any]) -> str:
                 "whole process (imports, data, cached fit read, posterior). A case run with "
                 "fewer than 1000 draws (and as many warmup steps) is extrapolated linearly to "
                 "4 chains x (1000 + 1000) steps (compilation included: an upper bound).", "",
-                _md(["model", "tests", "noise", "data", "chains x (warmup + draws)",
+                _md(["model", "tests", "noise", "data", "start", "chains x (warmup + draws)",
                      "posterior s", "process s", "at 4 x (1000 + 1000) s", "leapfrog/draw",
                      "R-hat max", "ESS bulk min", "divergences", "load before / after"],
-                    [[r["model"], r["n_tests"], r["noise"], r["data"],
+                    [[r["model"], r["n_tests"], r["noise"], r["data"], r.get("start", START),
                       f"{r['chains']} x ({r['warmup']} + {r['draws']})", r["posterior_s"],
                       r["process_s"], r["posterior_s"] * 2000 * 4 / (
                           r["chains"] * (r["warmup"] + r["draws"])),
@@ -420,6 +459,36 @@ def render(doc: dict[str, Any]) -> str:
                       r["diagnostics"]["ess_bulk_min"], r["diagnostics"]["divergences"],
                       "/".join(f"{v:.1f}" for v in r.get("load", []))]
                      for r in rows]), ""]
+    if doc.get("mbw_tests"):
+        rows = [r for r in doc["mbw_tests"] if r.get("row")]
+        failed = [r["label"] for r in doc["mbw_tests"] if not r.get("row")]
+        t = np.array([r["row"]["posterior_s"] for r in rows])
+        n = rows[0]["row"] if rows else {}
+        out += ["## Modified Bouc-Wen on each of the 30 UTFSM tests (cold processes)", "",
+                f"One fresh process per test, two at a time on the 2 cores, "
+                f"{n.get('chains')} chains x ({n.get('warmup')} + {n.get('draws')}) steps, "
+                f"AR(1) noise, the swarm's view, the start at the posterior's mode; "
+                f"`at 4 x (1000 + 1000)`: extrapolated linearly (an upper bound: a longer "
+                f"warmup adapts a better metric). Posterior s over the {len(rows)} tests: "
+                f"median {np.median(t):.0f}, max {t.max():.0f}, total {t.sum():.0f}."
+                if rows else "", "",
+                _md(["test", "posterior s", "at 4 x (1000 + 1000) s", "leapfrog/draw",
+                     "step size", "R-hat max", "ESS bulk min", "ESS tail min", "divergences",
+                     "held", "load before / after"],
+                    [[r["label"], r["row"]["posterior_s"],
+                      r["row"]["posterior_s"] * 2000 * 4 / (
+                          r["row"]["chains"] * (r["row"]["warmup"] + r["row"]["draws"])),
+                      r["row"]["diagnostics"]["leapfrog_per_draw"],
+                      r["row"]["diagnostics"]["step_size_median"],
+                      f"{r['row']['diagnostics']['r_hat_max']:.4f}",
+                      r["row"]["diagnostics"]["ess_bulk_min"],
+                      r["row"]["diagnostics"]["ess_tail_min"],
+                      r["row"]["diagnostics"]["divergences"], ", ".join(
+                          w.split(" held")[0].removeprefix("posterior: ")
+                          for w in r["row"]["warnings"] if " held at its fitted" in w) or "-",
+                      "/".join(f"{v:.1f}" for v in r.get("load", []))] for r in rows]), ""]
+        if failed:
+            out += [f"Not finished within the 900 s limit: {', '.join(failed)}.", ""]
     if doc.get("speed_notes"):
         out += ["Runs that did not finish (measured by hand, see the notes' commands):", ""]
         out += [f"- {n}" for n in doc["speed_notes"]] + [""]
@@ -482,7 +551,9 @@ def render(doc: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=("calibration", "speed", "views", "cost", "render", "case"))
+    ap.add_argument("what", choices=("calibration", "speed", "views", "cost", "render", "case",
+                                     "mbw-tests"))
+    ap.add_argument("--jobs", type=int, default=2, help="mbw-tests: processes at a time")
     ap.add_argument("--records", type=int, default=50)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--chains", type=int, default=4)
@@ -507,6 +578,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if a.what == "calibration":
         calibration(a.records, a.draws, a.models.split(","))
+    elif a.what == "mbw-tests":
+        merge("mbw_tests", mbw_tests(a.draws, a.jobs))
     elif a.what == "cost":
         merge("cost", gradient_cost())
     elif a.what == "speed":

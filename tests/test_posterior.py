@@ -131,6 +131,40 @@ def test_start_is_the_posterior_mode_with_its_hessian():
         np.testing.assert_allclose(L2[0] @ L2[0].T, cov, rtol=1e-4, atol=1e-9 * cov.max())
 
 
+SPREAD = """
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_posterior import Line, line_data, ols
+from mrjax.bayes import Sampler, chain_devices, sample
+data, _ = line_data()
+est, se, _ = ols(data)
+s = Sampler(draws=300, chains=4, warmup=300, gradient="forward")
+post = sample(Line(), est, data, lower=[-10, -10], upper=[10, 10], names=("a", "b"), sampler=s)
+th = post.theta.reshape(2, -1, 2)
+print(json.dumps({"devices": chain_devices(s), "z": (np.abs(th.mean(1) - est) / se).tolist(),
+                  "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"]}))
+"""
+
+
+def test_chains_spread_over_cpu_devices():
+    """With 2 CPU devices (JAX_NUM_CPU_DEVICES, as `mrjax fit --posterior` sets it) a unit's 4
+    chains run 2 per device, and the posterior is still the least-squares one."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES="2", JAX_PLATFORMS="cpu")
+    p = subprocess.run([sys.executable, "-c", SPREAD, os.path.dirname(__file__)], env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2
+    np.testing.assert_array_less(out["z"], 0.3)
+    np.testing.assert_allclose(out["sd"], 1.0, atol=0.2)
+    assert out["r_hat"] < 1.02
+
+
 def test_core_ar1_recovers_rho_and_widens_intervals():
     """AR(1) noise with rho = 0.8: the ar1 likelihood covers rho and gives intervals about
     sqrt((1 + rho) / (1 - rho)) = 3 x the iid ones (for the slope of a line through

@@ -59,4 +59,5 @@ from ._result import Posterior as Posterior
 from ._result import PosteriorFront as PosteriorFront
 from ._result import netcdf_bytes as netcdf_bytes
 from ._sampler import Sampler as Sampler
+from ._sampler import chain_devices as chain_devices
 from ._sampler import sample as sample

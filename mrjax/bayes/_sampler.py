@@ -202,15 +202,12 @@ def _tick_host(n):
     bar = _BAR[0]
     if bar is not None:
         bar.update(int(np.ravel(n)[0]))
-    return np.zeros(np.shape(n), np.int32)
 
 
 def _tick(n):
-    """Advance the progress bar by `n` steps: a `pure_callback` that vmap calls once with the
-    whole batch (all entries equal); its (zero) result is returned to the caller, which must
-    use it, so that it is not removed as dead code."""
-    return jax.pure_callback(_tick_host, jax.ShapeDtypeStruct(jnp.shape(n), jnp.int32), n,
-                             vmap_method="broadcast_all")
+    """Advance the progress bar by `n` steps of one chain: a `jax.debug.callback` (an effect:
+    never removed as dead code; under vmap and on each device it runs once per chain)."""
+    jax.debug.callback(_tick_host, n)
 
 
 def vectorized(sampler: Sampler) -> str:
@@ -227,8 +224,8 @@ def vectorized(sampler: Sampler) -> str:
 def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
     """Warmup then sampling of one chain of one unit (batched at the call site), in the
     whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`). The progress bar
-    advances every step when vmapped (one call for the whole batch), else once per phase
-    (one call per chain: a host call per step would cost more than a step)."""
+    advances every step of every chain when chains are vmapped, else once per phase (a host
+    call per step would cost more than a step of a static model)."""
     import blackjax  # imported here: `import mrjax` does not need it
 
     logdensity = lambda w: _logdensity(target, prior, unit, z0 + L @ w)
@@ -237,31 +234,44 @@ def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
     w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
     per_step = progress and vectorized(sampler) != "none"
     one_tick = jnp.ones((), jnp.int32)
-    info_fn = (lambda state, info, ad: _tick(one_tick + 0 * info.num_integration_steps)) \
-        if per_step else (lambda state, info, ad: None)
+
+    def info_fn(state, info, ad):
+        if per_step:
+            _tick(one_tick + 0 * info.num_integration_steps)
+
     warmup = blackjax.window_adaptation(
         blackjax.nuts, logdensity, is_mass_matrix_diagonal=not sampler.dense_mass,
         target_acceptance_rate=sampler.target_accept, adaptation_info_fn=info_fn,
         max_num_doublings=sampler.max_doublings)
-    (state, params), ticks = warmup.run(wkey, w_start, num_steps=sampler.warmup)
-    done = jnp.sum(ticks) if per_step else jnp.zeros((), jnp.int32)
+    (state, params), _ = warmup.run(wkey, w_start, num_steps=sampler.warmup)
     if progress and not per_step:  # after the warmup: it depends on its final state
-        done = done + _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
+        _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
     kernel = blackjax.nuts(logdensity, **params)
 
     def one(st, k):
         st, info = kernel.step(k, st)
         out = (z0 + L @ st.position, st.logdensity, info.is_divergent,
                info.num_integration_steps, info.acceptance_rate)
-        tick = _tick(one_tick + 0 * info.num_integration_steps) if per_step else \
-            jnp.zeros((), jnp.int32)
-        return st, out + (tick,)
+        if per_step:
+            _tick(one_tick + 0 * info.num_integration_steps)
+        return st, out
 
     last, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
-    done = done + jnp.sum(trace[5])
     if progress and not per_step:
-        done = done + _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
-    return trace[:5], params["step_size"], done
+        _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
+    return trace, params["step_size"]
+
+
+def chain_devices(sampler: Sampler) -> int:
+    """Over how many devices a unit's chains are spread (1: none): with several CPU devices
+    (`jax.config.update("jax_num_cpu_devices", n)` or `JAX_NUM_CPU_DEVICES=n` before JAX
+    starts; the `mrjax` command sets it for a posterior) and `vectorize` other than `"all"`,
+    the most that divide `chains`; each device runs its share of the chains on its own core,
+    its trajectories no longer waiting for the longest of a vmapped batch."""
+    n = jax.local_device_count()
+    if n < 2 or jax.default_backend() != "cpu" or vectorized(sampler) == "all":
+        return 1
+    return max(d for d in range(1, min(n, sampler.chains) + 1) if sampler.chains % d == 0)
 
 
 @eqx.filter_jit
@@ -269,13 +279,20 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
     chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
     mode = vectorized(sampler)
     over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
-    if mode == "all":  # one batch of units x chains
-        trace, step, done = jax.vmap(over_chains)(units, z0, L, keys)
-    elif mode == "chains":  # a batch of chains, one unit after another
-        trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
-    else:  # one chain after another, in the same compiled program
+    if mode == "none":  # one chain after another, in the same compiled program
         over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
-        trace, step, done = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
+    n_dev = chain_devices(sampler)
+    if n_dev > 1:  # the chains of a unit spread over the CPU devices, one share each
+        from jax.sharding import Mesh, PartitionSpec
+
+        mesh = Mesh(np.asarray(jax.local_devices()[:n_dev]), ("chain",))
+        over_chains = jax.shard_map(over_chains, mesh=mesh, in_specs=(
+            PartitionSpec(), PartitionSpec(), PartitionSpec(), PartitionSpec("chain")),
+            out_specs=PartitionSpec("chain"), check_vma=False)
+    if mode == "all":  # one batch of units x chains
+        trace, step = jax.vmap(over_chains)(units, z0, L, keys)
+    else:  # one unit after another
+        trace, step = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
     # the box map and the noise transforms, in the program: draws come back in SI units
     data, lo, hi, soft, theta_full = units
     free = np.asarray(target.free, int)
@@ -289,7 +306,7 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
     if target.noise == "ar1":
         v = z[..., Kf + R]
         log_sigma, rho = log_sigma - 0.5 * log1m_tanh2(v)[..., None], jnp.tanh(v)
-    return theta, jnp.exp(log_sigma), rho, trace[1:], step, done
+    return theta, jnp.exp(log_sigma), rho, trace[1:], step
 
 
 # ------------------------------------------------------------------------------ the start
@@ -649,9 +666,7 @@ def sample(
     if show:
         from tqdm.auto import tqdm  # imported here: only a shown bar needs it
 
-        mode = vectorized(sampler)
-        total = (sampler.warmup + sampler.draws) * {"all": 1, "chains": U}.get(
-            mode, U * sampler.chains)
+        total = (sampler.warmup + sampler.draws) * U * sampler.chains
         bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
                    leave=False, file=sys.stderr)
         _BAR[0] = bar
@@ -663,7 +678,7 @@ def sample(
         _BAR[0] = None
         if bar is not None:
             bar.close()
-    theta, sigma, rho, (lp, div, steps, acc), step_size, _ = out
+    theta, sigma, rho, (lp, div, steps, acc), step_size = out
     wall = time.perf_counter() - t0 + t_mode
     desc = {n: p.describe() for n, p in priors.items()}
     return Posterior(

@@ -16,6 +16,7 @@ from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir
 from ._parse import (
+    POSTERIOR_DEFAULTS,
     Parser,
     add_data_options,
     add_output_options,
@@ -241,6 +242,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Environment variable that gives JAX's CPU backend several devices (read when JAX starts).
+CPU_DEVICES_ENV = "JAX_NUM_CPU_DEVICES"
+
+
+def spread_chains(chains: int) -> int:
+    """Before JAX starts, give its CPU backend one device per chain, up to the CPU count
+    (`JAX_NUM_CPU_DEVICES`, unless the user set it or `XLA_FLAGS` names a device count), so that
+    `mrjax.bayes.sample` runs a test's chains side by side on the cores
+    (`mrjax.bayes.chain_devices`); nothing else uses the extra devices unless asked
+    (`--devices`).
+
+    **Returns:** the device count asked for (1: nothing changed)."""
+    if "jax" in sys.modules or os.environ.get(CPU_DEVICES_ENV) or \
+            "device_count" in os.environ.get("XLA_FLAGS", ""):
+        return 1
+    n = min(max(int(chains), 1), os.cpu_count() or 1)
+    if n > 1:
+        os.environ[CPU_DEVICES_ENV] = str(n)
+    return n
+
+
 def enable_compilation_cache() -> str | None:
     """Point JAX's persistent compilation cache at `$MRJAX_CACHE_DIR` (default
     `~/.cache/mrjax/xla`) unless the user configured one (`JAX_COMPILATION_CACHE_DIR`) or set
@@ -277,6 +299,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     """Claim the command's output directory (refusal and lock before anything heavy is
     imported), import the command and run it."""
     module, name = args.run
+    if getattr(args, "posterior", False):
+        spread_chains(args.chains or POSTERIOR_DEFAULTS["chains"])
     if args.command in ("fit", "predict", "reproduce", "compare"):
         enable_compilation_cache()
     if args.command not in WRITERS:
