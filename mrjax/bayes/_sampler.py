@@ -103,7 +103,8 @@ class Sampler(eqx.Module):
         ends, so where one chain's residuals already fill the vector units (tanh on a record)
         the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x 200 steps on the
         swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its compilation 12.6 s
-        against 5.9 s (`benchmarks/posterior.md`).
+        against 5.9 s (`benchmarks/posterior.md`). With several CPU devices the chains of a
+        unit are also spread over them (:func:`chain_devices`).
     - `gradient`: how the residuals are differentiated: `"reverse"` (default) or `"forward"`
         (their Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential
         integration, e.g. the dynamic models).
@@ -318,6 +319,9 @@ MODE_TOL = 1e-3
 #: Step of the central differences of the gradient that give the Hessian at the mode, in the
 #: whitened coordinates of the Gauss-Newton start (where the posterior spans O(1)).
 HESS_STEP = 1e-4
+#: Gradients evaluated side by side for that Hessian (2 per unknown in all): a joint-laws unit
+#: holds every record, and its reverse-mode gradient the whole forward pass.
+HESS_BATCH = 8
 #: Eigenvalues of the mode's covariance, in those coordinates, are kept within these bounds
 #: (the narrowest direction measured on a UTFSM test was 2e-3, the widest 80).
 MODE_EIG = (1e-6, 1e3)
@@ -339,7 +343,7 @@ def _mode(target, prior, units, z0, L):
 
         def neg_hess(w):
             pts = jnp.concatenate([w + HESS_STEP * eye, w - HESS_STEP * eye])
-            g = jax.vmap(grad)(pts)
+            g = jax.lax.map(grad, pts, batch_size=HESS_BATCH)  # bounded memory on big units
             H = -(g[:D] - g[D:]) / (2.0 * HESS_STEP)
             H = 0.5 * (H + H.T)
             return jnp.where(jnp.isfinite(H), H, 0.0)
