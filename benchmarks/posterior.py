@@ -423,6 +423,9 @@ def render(doc: dict[str, Any]) -> str:
                       r["jacobian_coverage"], f"{r['r_hat_max']:.4f}", r["ess_bulk_min"],
                       r["ess_tail_min"], r["divergences"], r["leapfrog_per_draw"],
                       r["posterior_s"]] for r in rows]), ""]
+        out += [f"- {r['model']} {r['data_noise']} / {r['likelihood']}: {r['note']}"
+                for r in rows if r.get("note")]
+        out += [""] if any(r.get("note") for r in rows) else []
     if "speed_cli" in doc:
         out += ["## Speed: the command line (cold process)", "",
                 "Fresh process, `MRJAX_CACHE_DIR=off` (no compilation cache), `nice -n 10`: "
