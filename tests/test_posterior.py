@@ -89,7 +89,8 @@ def test_start_is_the_posterior_mode_with_its_hessian():
     prior on a, 3 std-errors off the least-squares value, moves the mode to the penalised least
     squares with s^2 = RSS / n (a fixed point, solved here in closed form per s); the start's
     covariance is the inverse of the exact Hessian of (a, b, log s) there."""
-    from mrjax.bayes import _sampler as core  # noqa: SLF001 - the start is internal
+    from mrjax.bayes import _priors as priors  # noqa: SLF001 - the start is internal
+    from mrjax.bayes import _start as core  # noqa: SLF001
 
     data, _ = line_data()
     est, se, _ = ols(data)
@@ -109,19 +110,19 @@ def test_start_is_the_posterior_mode_with_its_hessian():
         H[:2, 2] = H[2, :2] = -2.0 * X.T @ r / s2
         H[2, 2] = 2.0 * n
         prior = {"a": Normal(float(mu[i]), float(tau[i]))}
-        kind, a, b, lo_i, hi_i = core.prior_arrays(core.check_priors(prior, names), names,
+        kind, a, b, lo_i, hi_i = priors.prior_arrays(priors.check_priors(prior, names), names,
                                                     lo[i:i + 1], hi[i:i + 1])
         unit = jax.tree.map(lambda d: jnp.asarray(d[i:i + 1]), data)
-        z0, imm, soft, lo_f, hi_f, _ = core._start(Line(), est[i:i + 1], lo_i, hi_i, unit,
+        z0, imm, soft, lo_f, hi_f, _ = core.start(Line(), est[i:i + 1], lo_i, hi_i, unit,
                                                    (0, 1), "iid", names)
-        target = core._Target(residual=Line(), free=(0, 1), rows=(1,), noise="iid")
+        target = core.Target(residual=Line(), free=(0, 1), rows=(1,), noise="iid")
         units = (unit, jnp.asarray(lo_f), jnp.asarray(hi_f), jnp.asarray(soft),
                  jnp.asarray(est[i:i + 1]))
         L = np.linalg.cholesky(imm)
-        found = jax.device_get(core._mode(target, tuple(map(jnp.asarray, (kind, a, b))),
+        found = jax.device_get(core.find_mode(target, tuple(map(jnp.asarray, (kind, a, b))),
                                           units, jnp.asarray(z0), jnp.asarray(L)))
         assert found[1][0] > found[2][0] + 1.0  # it climbed (from the least-squares start)
-        z, L2 = core._laplace(*found, z0, L)
+        z, L2 = core.laplace(*found, z0, L)
         th = np.asarray(to_box(z[0, :2], lo_f[0], hi_f[0], soft[0]))
         np.testing.assert_allclose(th, beta, rtol=0, atol=1e-4 * se[i].min())
         np.testing.assert_allclose(np.exp(z[0, 2]), np.sqrt(s2), rtol=1e-6)
