@@ -464,7 +464,9 @@ def render(doc: dict[str, Any]) -> str:
                      for r in rows]), ""]
     if doc.get("mbw_tests"):
         rows = [r for r in doc["mbw_tests"] if r.get("row")]
-        failed = [r["label"] for r in doc["mbw_tests"] if not r.get("row")]
+        failed = [r["label"] for r in doc["mbw_tests"] if not r.get("row")
+                  and not r.get("not_run")]
+        skipped = [r["label"] for r in doc["mbw_tests"] if r.get("not_run")]
         t = np.array([r["row"]["posterior_s"] for r in rows])
         n = rows[0]["row"] if rows else {}
         out += ["## Modified Bouc-Wen on each of the 30 UTFSM tests (cold processes)", "",
@@ -492,6 +494,8 @@ def render(doc: dict[str, Any]) -> str:
                       "/".join(f"{v:.1f}" for v in r.get("load", []))] for r in rows]), ""]
         if failed:
             out += [f"Not finished within the 900 s limit: {', '.join(failed)}.", ""]
+        if skipped:
+            out += [f"Not run (the session's time ran out): {', '.join(skipped)}.", ""]
     if doc.get("speed_notes"):
         out += ["Runs that did not finish (measured by hand, see the notes' commands):", ""]
         out += [f"- {n}" for n in doc["speed_notes"]] + [""]
