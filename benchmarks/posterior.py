@@ -449,11 +449,15 @@ def render(doc: dict[str, Any]) -> str:
                 "posterior s: `mrjax.posterior` alone, compilation included; process s: the "
                 "whole process (imports, data, cached fit read, posterior). A case run with "
                 "fewer than 1000 draws (and as many warmup steps) is extrapolated linearly to "
-                "4 chains x (1000 + 1000) steps (compilation included: an upper bound).", "",
-                _md(["model", "tests", "noise", "data", "start", "chains x (warmup + draws)",
+                "4 chains x (1000 + 1000) steps (compilation included: an upper bound). CPU "
+                "devices: `JAX_NUM_CPU_DEVICES` (a test's chains spread over them, "
+                "`mrjax.bayes.chain_devices`).", "",
+                _md(["model", "tests", "noise", "data", "start", "CPU devices",
+                     "chains x (warmup + draws)",
                      "posterior s", "process s", "at 4 x (1000 + 1000) s", "leapfrog/draw",
                      "R-hat max", "ESS bulk min", "divergences", "load before / after"],
-                    [[r["model"], r["n_tests"], r["noise"], r["data"], r.get("start", START),
+                    [[r["model"], r["n_tests"] if r["n_tests"] > 1 else r["tests"], r["noise"],
+                      r["data"], r.get("start", START), r.get("devices", 1),
                       f"{r['chains']} x ({r['warmup']} + {r['draws']})", r["posterior_s"],
                       r["process_s"], r["posterior_s"] * 2000 * 4 / (
                           r["chains"] * (r["warmup"] + r["draws"])),
