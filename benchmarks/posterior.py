@@ -470,6 +470,8 @@ def render(doc: dict[str, Any]) -> str:
         rows = [r for r in doc["mbw_tests"] if r.get("row")]
         failed = [r["label"] for r in doc["mbw_tests"] if not r.get("row")
                   and not r.get("not_run")]
+        failed += [f"{r['label']} (first try, 1 device)" for r in doc["mbw_tests"]
+                   if r.get("first_try_unfinished")]
         skipped = [r["label"] for r in doc["mbw_tests"] if r.get("not_run")]
         t = np.array([r["row"]["posterior_s"] for r in rows])
         n = rows[0]["row"] if rows else {}
@@ -481,10 +483,11 @@ def render(doc: dict[str, Any]) -> str:
                 f"warmup adapts a better metric). Posterior s over the {len(rows)} tests: "
                 f"median {np.median(t):.0f}, max {t.max():.0f}, total {t.sum():.0f}."
                 if rows else "", "",
-                _md(["test", "posterior s", "at 4 x (1000 + 1000) s", "leapfrog/draw",
+                _md(["test", "CPU devices", "posterior s", "at 4 x (1000 + 1000) s",
+                     "leapfrog/draw",
                      "step size", "R-hat max", "ESS bulk min", "ESS tail min", "divergences",
                      "held", "load before / after"],
-                    [[r["label"], r["row"]["posterior_s"],
+                    [[r["label"], r.get("devices", 1), r["row"]["posterior_s"],
                       r["row"]["posterior_s"] * 2000 * 4 / (
                           r["row"]["chains"] * (r["row"]["warmup"] + r["row"]["draws"])),
                       r["row"]["diagnostics"]["leapfrog_per_draw"],
