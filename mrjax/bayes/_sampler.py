@@ -47,8 +47,8 @@ from ._priors import check_priors, prior_arrays, to_box
 from ._result import Posterior
 from ._start import Target, find_mode, laplace, log_density, start
 
-#: Chains start at the optimum plus this many starting standard deviations of noise (a start
-#: with a non-finite log-density falls back onto the optimum).
+#: Chains start at the mode plus this many starting standard deviations of noise (a start
+#: with a non-finite log-density falls back onto the mode).
 JITTER = 1.0
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
 #: one unit at a time, or none (one chain after another).
@@ -283,7 +283,7 @@ def sample(
     than the box in some direction of the unknowns (a symmetry of the model, or an unknown
     these records do not inform), one unknown per such direction is held at `theta0` in that
     unit (its `lower == upper` in the result, listed by `Posterior.problems`): the others'
-    posterior is conditional on it. A damped Newton search (`MODE_STEPS`) then moves the start
+    posterior is conditional on it. A damped Newton search (`_start.MODE_STEPS`) then moves the start
     from `theta0`, the least-squares optimum of the fit's data, to the mode of this posterior
     (the noise model, the prior and the soft box move it), and the chains start around the
     mode with the inverse of the log-density's Hessian there as their mass matrix (modified
