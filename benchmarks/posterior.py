@@ -38,6 +38,7 @@ import subprocess
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -206,6 +207,22 @@ def cold_cli(model: str, tests: str = "all", extra: tuple[str, ...] = ()) -> dic
 
 
 # ------------------------------------------------------------------------------ gradient cost
+def per_call_s(fn: Callable, theta: Any, n: int) -> float:
+    """Warm median seconds per call of `fn(theta) -> scalar`, `n` calls inside one compiled
+    loop (no dispatch cost; each call's argument nudged so none is hoisted out)."""
+    import jax
+
+    many = jax.jit(lambda th: jax.lax.fori_loop(
+        0, n, lambda i, acc: acc + fn(th * (1.0 + 1e-12 * i)), 0.0))
+    jax.block_until_ready(many(theta))
+    ts = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        jax.block_until_ready(many(theta))
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)) / n
+
+
 def gradient_cost() -> list[dict[str, Any]]:
     """Warm median time of one force evaluation and of one value-and-gradient of the Gaussian
     log-likelihood, on one UTFSM test (record and view)."""
@@ -242,19 +259,7 @@ def gradient_cost() -> list[dict[str, Any]]:
 
         n = 20 if model.dynamic and data == "record" else 200
 
-        def med(fn):
-            """Seconds per evaluation, inside one compiled loop (no dispatch cost)."""
-            many = jax.jit(lambda th: jax.lax.fori_loop(
-                0, n, lambda i, acc: acc + fn(th * (1.0 + 1e-12 * i)), 0.0))
-            jax.block_until_ready(many(theta))
-            ts = []
-            for _ in range(5):
-                t0 = time.perf_counter()
-                jax.block_until_ready(many(theta))
-                ts.append(time.perf_counter() - t0)
-            return float(np.median(ts)) / n
-
-        tf, tg, tfw = med(force), med(rev), med(fwd)
+        tf, tg, tfw = (per_call_s(f, theta, n) for f in (force, rev, fwd))
         sub, scheme = model.integration(theta, batch.xdot, batch.dt) if model.dynamic else \
             (1, "-")
         rows.append({"model": model_name, "data": data, "samples": int(np.sum(mask)),

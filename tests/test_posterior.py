@@ -82,6 +82,11 @@ def test_core_matches_least_squares_posterior():
     np.testing.assert_allclose(np.median(sig, axis=1), resid, rtol=0.05)
     d = post.diagnostics()
     assert d["r_hat_max"] < 1.02 and d["divergences"] == 0
+    # the warmup's cost is kept, step by step: leapfrog steps of every warmup step
+    S = post.sampler
+    assert post.warmup_steps.shape == (2, S.chains, S.warmup)
+    assert post.warmup_steps.min() >= 1 and post.warmup_steps.max() <= 2**S.max_doublings - 1
+    assert d["leapfrog_per_warmup_step"] == post.warmup_steps.mean()
 
 
 def test_start_is_the_posterior_mode_with_its_hessian():
@@ -426,8 +431,11 @@ def test_dynamic_model_intervals_cover_the_truth():
     res = mrjax.fit("dahl", batch, seed=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        tp = mrjax.posterior(res, batch, draws=300, chains=2, warmup=300, seed=0)
+        # the user's settings: their gradient left to the model, forward mode for a dynamic one
+        tp = mrjax.posterior(res, batch, seed=0,
+                             sampler=mrjax.bayes.Sampler(draws=300, chains=2, warmup=300))
     assert tp.data == "view"
+    assert tp.posterior.sampler.gradient == "forward"
     assert covered(tp, truth).sum() >= 9, tp.table()
     assert covered(tp, truth, 0.999).all(), tp.table()
     assert np.all(np.isfinite(tp.posterior.theta))

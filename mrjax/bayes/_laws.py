@@ -446,8 +446,8 @@ def law_posterior(
         raise InputError("the posterior of laws of a time-varying command (lag or voltage) is "
                          "not available; laws over a constant current only")
     model = gm.model
-    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup,
-                                  gradient="forward" if model.dynamic else "reverse")).check()
+    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup)).for_model(
+        model.dynamic).check()
     check_noise(noise)
     if likelihood_data is not None and likelihood_data not in DATA_CHOICES:
         raise InputError(f"likelihood_data must be one of {', '.join(DATA_CHOICES)}, got "

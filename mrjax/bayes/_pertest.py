@@ -303,8 +303,8 @@ def posterior(
         mass matrix, see `mrjax.bayes.sample`).
     - `data`: the conditions it was fitted on (same labels), as `mrjax.fit` takes them.
     - `draws`, `chains`, `warmup`: kept draws per chain, chains per condition, adaptation
-        steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three, and the
-        default forward-mode gradient of the dynamic models).
+        steps per chain (see `mrjax.bayes.Sampler`; `sampler` overrides all three; where its
+        `gradient` is None, a dynamic model is differentiated in forward mode).
     - `noise`: `"iid"` (independent Gaussian residuals) or `"ar1"` (AR(1), rho fitted per
         condition: use it on real records, whose model error is correlated; see
         `mrjax.bayes.block_loglik`). One noise level per condition in both.
@@ -348,8 +348,8 @@ def posterior(
                          f"current (GeneralizedModel), got {type(result).__name__}")
     model = result.model
     # a dynamic model's residuals are one sequential integration: forward mode (see Sampler)
-    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup,
-                                  gradient="forward" if model.dynamic else "reverse")).check()
+    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup)).for_model(
+        model.dynamic).check()
     check_noise(noise)
     if likelihood_data is not None and likelihood_data not in DATA_CHOICES:
         raise InputError(f"likelihood_data must be one of {', '.join(DATA_CHOICES)}, got "

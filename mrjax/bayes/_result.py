@@ -44,7 +44,8 @@ class Posterior:
         (None for `noise="iid"`).
     - `lp` (U, C, N) log posterior density (up to a constant; of the sampler's coordinates);
         `diverging` (U, C, N); `n_steps` (U, C, N) leapfrog steps of each draw;
-        `accept` (U, C, N) mean acceptance probability; `step_size` (U, C) adapted.
+        `accept` (U, C, N) mean acceptance probability; `step_size` (U, C) adapted;
+        `warmup_steps` (U, C, W) leapfrog steps of each warmup step (None if not kept).
     - `theta0` (U, K) the optimum the chains started around; `lower`, `upper` (U, K) the box
         (after uniform priors); `free` (K,) which unknowns were sampled.
     - `noise`, `prior` {name: description}, `sampler` (the `mrjax.bayes.Sampler`), `seed`,
@@ -73,6 +74,7 @@ class Posterior:
     seed: int
     timings: dict[str, float]
     param_units: tuple[str, ...] | None = None
+    warmup_steps: np.ndarray | None = None
 
     # ----------------------------------------------------------------------------- shapes
     @property
@@ -210,7 +212,7 @@ class Posterior:
     def diagnostics(self) -> dict[str, Any]:
         """Convergence figures: worst R-hat, smallest bulk / tail ESS over every sampled
         variable and unit, divergent transitions (total and per unit), mean leapfrog steps per
-        draw, mean acceptance, median adapted step size."""
+        draw (and per warmup step), mean acceptance, median adapted step size."""
         def worst(k, f):
             vals = np.concatenate([a.ravel() for a in self._diag[k].values()])
             vals = vals[np.isfinite(vals)]
@@ -221,6 +223,8 @@ class Posterior:
                 "divergences": int(self.diverging.sum()),
                 "divergences_per_unit": [int(v) for v in self.diverging.sum(axis=(1, 2))],
                 "leapfrog_per_draw": float(self.n_steps.mean()),
+                "leapfrog_per_warmup_step": float(self.warmup_steps.mean())
+                if self.warmup_steps is not None else float("nan"),
                 "acceptance": float(self.accept.mean()),
                 "step_size_median": float(np.median(self.step_size))}
 
