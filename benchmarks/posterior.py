@@ -511,6 +511,34 @@ def render(doc: dict[str, Any]) -> str:
     if doc.get("speed_notes"):
         out += ["Runs that did not finish (measured by hand, see the notes' commands):", ""]
         out += [f"- {n}" for n in doc["speed_notes"]] + [""]
+    if "mbw_geometry" in doc:
+        g = doc["mbw_geometry"]
+        out += ["## Where the modified Bouc-Wen posterior spends its leapfrog steps", "",
+                g["intro"], "",
+                _md(["target acceptance", "posterior s", "leapfrog/draw", "leapfrog/warmup step",
+                     "step size", "gradients per device (warmup + draws)", "ms per gradient step",
+                     "R-hat max", "ESS bulk / tail min", "divergences", "load"],
+                    [[r["target_accept"], r["posterior_s"], r["leapfrog_per_draw"],
+                      r["leapfrog_per_warmup_step"], r["step_size_median"],
+                      " / ".join(f"{w} + {d}" for w, d in zip(r["work_warmup"], r["work_draws"])),
+                      1e3 * r["posterior_s"] / max(w + d for w, d in zip(r["work_warmup"],
+                                                                          r["work_draws"])),
+                      f"{r['r_hat_max']:.4f}", f"{r['ess_bulk_min']:.0f} / {r['ess_tail_min']:.0f}",
+                      r["divergences"], r["load"]] for r in g["runs"]]), ""]
+        out += [f"- {n}" for n in g["notes"]] + [""]
+        if "hessian" in g:
+            h = g["hessian"]
+            out += [f"The curvature (`python -m benchmarks.posterior_geometry`, test {h['test']}, "
+                    f"{h['draws']} draws whitened by their covariance, the Hessian of -log "
+                    f"density at {h['points']} of them; 1 everywhere for a Gaussian):", "",
+                    _md(["largest eigenvalue median", "90 %", "max", "its direction (draws)"],
+                        [[h["largest_eigenvalue"]["median"], h["largest_eigenvalue"]["p90"],
+                          h["largest_eigenvalue"]["max"],
+                          "; ".join(f"{d} ({n})" for d, n in sorted(
+                              h["directions"].items(), key=lambda t: -t[1]))]]), "",
+                    _md(["", *h["skew"]],
+                        [["skew", *h["skew"].values()],
+                         ["excess kurtosis", *h["excess_kurtosis"].values()]]), ""]
     if "cost" in doc:
         out += ["## One gradient against one force evaluation (test 10mm1Hz1A, warm)", "",
                 "Inside one compiled loop (no dispatch cost). The sampler uses the reverse "
