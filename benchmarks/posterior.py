@@ -312,9 +312,8 @@ def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, A
     for model in models:
         # the dynamic model's records are short sequential integrations: one vmapped batch
         # of all chains amortises the integrator's per-step cost (see Sampler.vectorize)
-        sampler = Sampler(draws=draws, chains=4, warmup=draws,
-                          gradient="forward" if model == "dahl" else "reverse",
-                          vectorize=model == "dahl")
+        # (the gradient and the target acceptance: the model's defaults, Sampler.for_model)
+        sampler = Sampler(draws=draws, chains=4, warmup=draws, vectorize=model == "dahl")
         for data_noise, fit_noise in (("iid", "iid"), ("ar1", "ar1"), ("ar1", "iid")):
             batch, truth = simulate_set(model, records, data_noise, seed=1)
             t0 = time.perf_counter()
@@ -340,6 +339,7 @@ def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, A
                          "r_hat_max": d["r_hat_max"], "ess_bulk_min": d["ess_bulk_min"],
                          "ess_tail_min": d["ess_tail_min"], "divergences": d["divergences"],
                          "leapfrog_per_draw": d["leapfrog_per_draw"], "fit_s": t_fit,
+                         "target_accept": post.sampler.target_accept,
                          "posterior_s": t_post})
             log(f"calibration {model} {data_noise}/{fit_noise}: coverage {cov.mean():.3f} "
                 f"(Jacobian {np.mean(jcov):.3f}), R-hat {d['r_hat_max']:.4f}, "
@@ -421,13 +421,13 @@ def render(doc: dict[str, Any]) -> str:
                 "4 chains x 1000 draws. Coverage: share of (record, parameter) pairs whose 95 % "
                 "interval holds the truth (nominal 0.95; the Jacobian intervals of the fit "
                 "beside it).", "",
-                _md(["model", "noise in data", "likelihood", "coverage", "Jacobian coverage",
-                     "R-hat max", "ESS bulk min", "ESS tail min", "divergences",
-                     "leapfrog/draw", "posterior s"],
-                    [[r["model"], r["data_noise"], r["likelihood"], r["coverage"],
-                      r["jacobian_coverage"], f"{r['r_hat_max']:.4f}", r["ess_bulk_min"],
-                      r["ess_tail_min"], r["divergences"], r["leapfrog_per_draw"],
-                      r["posterior_s"]] for r in rows]), ""]
+                _md(["model", "noise in data", "likelihood", "target acceptance", "coverage",
+                     "Jacobian coverage", "R-hat max", "ESS bulk min", "ESS tail min",
+                     "divergences", "leapfrog/draw", "posterior s"],
+                    [[r["model"], r["data_noise"], r["likelihood"], r.get("target_accept", 0.9),
+                      r["coverage"], r["jacobian_coverage"], f"{r['r_hat_max']:.4f}",
+                      r["ess_bulk_min"], r["ess_tail_min"], r["divergences"],
+                      r["leapfrog_per_draw"], r["posterior_s"]] for r in rows]), ""]
         out += [f"- {r['model']} {r['data_noise']} / {r['likelihood']}: {r['note']}"
                 for r in rows if r.get("note")]
         out += [""] if any(r.get("note") for r in rows) else []

@@ -82,8 +82,10 @@ def test_core_matches_least_squares_posterior():
     np.testing.assert_allclose(np.median(sig, axis=1), resid, rtol=0.05)
     d = post.diagnostics()
     assert d["r_hat_max"] < 1.02 and d["divergences"] == 0
-    # the warmup's cost is kept, step by step: leapfrog steps of every warmup step
+    # sample alone: reverse mode
     S = post.sampler
+    assert S.gradient == "reverse"
+    # the warmup's cost is kept, step by step: leapfrog steps of every warmup step
     assert post.warmup_steps.shape == (2, S.chains, S.warmup)
     assert post.warmup_steps.min() >= 1 and post.warmup_steps.max() <= 2**S.max_doublings - 1
     assert d["leapfrog_per_warmup_step"] == post.warmup_steps.mean()

@@ -152,6 +152,7 @@ class Posterior:
         attrs = {"noise": self.noise, "seed": self.seed, "sampler": "blackjax NUTS",
                  "warmup": int(self.sampler.warmup), "dense_mass": int(self.sampler.dense_mass),
                  "prior": "; ".join(f"{k}: {v}" for k, v in self.prior.items()) or "flat on box"}
+        attrs["target_accept"] = float(self.sampler.target_accept)
         if self.param_units is not None:
             attrs["units"] = ", ".join(f"{n} [{un}]" for n, un in zip(self.names,
                                                                       self.param_units))
@@ -311,6 +312,7 @@ class Posterior:
         s = self.sampler
         doc = {"sampler": "blackjax NUTS", "noise": self.noise, "draws": int(s.draws),
                "chains": int(s.chains), "warmup": int(s.warmup), "dense_mass": bool(s.dense_mass),
+               "target_accept": float(s.target_accept),
                "seed": self.seed, "prior": self.prior or "flat on the bounds",
                "diagnostics": self.diagnostics(), "warnings": self.problems(),
                "timings_s": dict(self.timings), "conditions": units}
