@@ -91,6 +91,48 @@ def test_core_matches_least_squares_posterior():
     assert d["leapfrog_per_warmup_step"] == post.warmup_steps.mean()
 
 
+class SkewedLine(eqx.Module):
+    """The line's residuals with an approximate derivative: the slope's column scaled by
+    `skew` (as the L-stable scheme's implicit tangent approximates the exact one)."""
+
+    skew: float = eqx.field(static=True)
+
+    def __call__(self, theta, unit):
+        t, y, m = unit
+
+        @jax.custom_jvp
+        def r(th):
+            return (th[0] + th[1] * t) - y
+
+        @r.defjvp
+        def r_jvp(primals, tangents):
+            (th,), (dth,) = primals, tangents
+            return r(th), dth[0] + self.skew * dth[1] * t
+
+        return ((r(theta)[None], m[None]),)
+
+
+@pytest.mark.parametrize("skew, switched", [(1.0, False), (1.0 + 1e-7, False), (-1.0, True)])
+def test_an_approximate_gradient_is_checked_at_the_start(skew, switched):
+    """An approximate derivative (`residual`) is kept where its whitened gradient is within
+    GRADIENT_TOL of the exact one (`exact`), else the exact one is used: the posterior is least
+    squares in short trees either way (with the slope's derivative of the wrong sign, NUTS
+    alone would shrink its step towards 0 and run every tree to its cap)."""
+    from mrjax.bayes._start import GRADIENT_TOL
+
+    data, _ = line_data()
+    est, se, _ = ols(data)
+    post = sample(SkewedLine(skew), est, data, exact=Line(), **BOX)
+    assert (post.gradient_error > GRADIENT_TOL) == switched, post.gradient_error
+    if skew == 1.0:
+        assert post.gradient_error < 1e-9
+    th = post.theta.reshape(2, -1, 2)
+    np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
+    np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.2)
+    d = post.diagnostics()
+    assert d["divergences"] == 0 and d["leapfrog_per_draw"] < 10, d
+
+
 def test_start_is_the_posterior_mode_with_its_hessian():
     """The chains start at the posterior's mode, not at the optimum they are given: a normal
     prior on a, 3 std-errors off the least-squares value, moves the mode to the penalised least

@@ -65,7 +65,7 @@ from ..generalize import (
     record_order,
 )
 from ._noise import check_noise
-from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
+from ._pertest import DATA_CHOICES, PredictiveBand, exact_model, predictive_band
 from ._priors import at_bounds
 from ._result import RHO, SIGMA, Posterior, PosteriorFront, arviz
 from ._sampler import Sampler, sample
@@ -477,6 +477,7 @@ def law_posterior(
     order = record_order(m)
     run_model = gm.resolved_model(cur, b.xdot, b.dt, m)
     residual = LawBlocks(run_model, coding)
+    exact = exact_model(run_model)
     if gm.method != "joint":
         warnings.warn(f"posterior of {gm.method} laws: the chains start from them, not from "
                       "the joint least-squares optimum, and need a longer warmup",
@@ -491,7 +492,8 @@ def law_posterior(
     post = sample(residual, phi0[None], data1, lower=lo, upper=hi, names=names,
                   labels=("laws",), row_labels=labels,
                   sampler=sampler, noise=noise, prior=prior, key=key, seed=seed,
-                  progress=progress, unit_dim="laws", units=units)
+                  progress=progress, unit_dim="laws", units=units,
+                  exact=None if exact is None else LawBlocks(exact, coding))
     Q = len(free)
     C, N = post.n_chains, post.n_draws
     coef = np.asarray(_coefficients(coding, jnp.asarray(post.theta[0].reshape(-1, Q))))

@@ -42,6 +42,15 @@ GAUGE: tuple[str, ...] = ("delta",)
 DATA_CHOICES: tuple[str, ...] = ("record", "view")
 
 
+def exact_model(model: AbstractModel) -> AbstractModel | None:
+    """The resolved `model` differentiated exactly, where its derivatives are the L-stable
+    scheme's implicit tangent (an approximation: see `mrjax.models.integrate`); else None."""
+    if getattr(model, "scheme", None) == "sdirk" and getattr(model, "tangent", None) == \
+            "implicit":
+        return model.with_substeps(model.substeps, "sdirk", "exact")
+    return None
+
+
 class PerTestResidual(eqx.Module):
     """Residual function of one condition for `mrjax.bayes.sample`: one block of one record,
     `model.force - force` [N] on the scored samples (`mrjax.objective.residuals`)."""
@@ -373,7 +382,9 @@ def posterior(
     post = sample(PerTestResidual(run_model), theta0, units, lower=lo, upper=hi,
                   names=model.param_names, labels=batch.labels, sampler=sampler,
                   noise=noise, prior=prior, key=key, seed=seed, progress=progress,
-                  units=model.units, gauge=GAUGE if model.name in Z_SCALE_MODELS else ())
+                  units=model.units, gauge=GAUGE if model.name in Z_SCALE_MODELS else (),
+                  exact=None if (exact := exact_model(run_model)) is None
+                  else PerTestResidual(exact))
     for line in post.problems():
         warnings.warn(line, RuntimeWarning, stacklevel=2)
     return TestPosterior(posterior=post, model=model, fit=result, data=choice,

@@ -45,7 +45,10 @@ class Posterior:
     - `lp` (U, C, N) log posterior density (up to a constant; of the sampler's coordinates);
         `diverging` (U, C, N); `n_steps` (U, C, N) leapfrog steps of each draw;
         `accept` (U, C, N) mean acceptance probability; `step_size` (U, C) adapted;
-        `warmup_steps` (U, C, W) leapfrog steps of each warmup step (None if not kept).
+        `warmup_steps` (U, C, W) leapfrog steps of each warmup step (None if not kept);
+        `gradient_error` the largest whitened error of an approximate gradient at the start
+        (None where the gradient is exact; above `GRADIENT_TOL` the exact one was used, see
+        `mrjax.bayes.sample`).
     - `theta0` (U, K) the optimum the chains started around; `lower`, `upper` (U, K) the box
         (after uniform priors); `free` (K,) which unknowns were sampled.
     - `noise`, `prior` {name: description}, `sampler` (the `mrjax.bayes.Sampler`), `seed`,
@@ -75,6 +78,7 @@ class Posterior:
     timings: dict[str, float]
     param_units: tuple[str, ...] | None = None
     warmup_steps: np.ndarray | None = None
+    gradient_error: float | None = None
 
     # ----------------------------------------------------------------------------- shapes
     @property
@@ -226,6 +230,8 @@ class Posterior:
                 "leapfrog_per_draw": float(self.n_steps.mean()),
                 "leapfrog_per_warmup_step": float(self.warmup_steps.mean())
                 if self.warmup_steps is not None else float("nan"),
+                "gradient_error": float("nan") if self.gradient_error is None
+                else self.gradient_error,
                 "acceptance": float(self.accept.mean()),
                 "step_size_median": float(np.median(self.step_size))}
 
