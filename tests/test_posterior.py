@@ -133,6 +133,26 @@ def test_an_approximate_gradient_is_checked_at_the_start(skew, switched):
     assert d["divergences"] == 0 and d["leapfrog_per_draw"] < 10, d
 
 
+def test_exact_tangent_of_a_resolved_model():
+    """The L-stable scheme's implicit tangent has an exact counterpart with the same forces and
+    finite-difference derivatives; RK4 and static models have none (already exact)."""
+    mbw = mrjax.models.get("modified_bouc_wen")
+    implicit = mbw.with_substeps(1, "sdirk", "implicit")
+    exact = mrjax.models.exact_tangent(implicit)
+    assert (exact.scheme, exact.tangent, exact.substeps) == ("sdirk", "exact", 1)
+    assert mrjax.models.exact_tangent(mbw.with_substeps(2, "rk4")) is None
+    assert mrjax.models.exact_tangent(mrjax.models.get("kwok")) is None
+    t = np.linspace(0.0, 1.0, 201)
+    x, v = 0.01 * np.sin(2 * np.pi * t), 0.02 * np.pi * np.cos(2 * np.pi * t)
+    th = jnp.asarray(0.5 * (np.asarray(mbw.bounds[0]) + np.asarray(mbw.bounds[1])))
+    f = lambda m, p: m.force(p, jnp.asarray(x), jnp.asarray(v), 0.005)
+    np.testing.assert_allclose(f(exact, th), f(implicit, th), rtol=1e-12, atol=1e-9)
+    j = jax.jacfwd(lambda p: f(exact, p))(th)[:, 4]  # alpha
+    h = 1e-6 * max(abs(float(th[4])), 1.0)
+    fd = (f(exact, th.at[4].add(h)) - f(exact, th.at[4].add(-h))) / (2 * h)
+    np.testing.assert_allclose(j, fd, rtol=1e-5, atol=1e-6 * float(jnp.max(jnp.abs(fd))))
+
+
 def test_start_is_the_posterior_mode_with_its_hessian():
     """The chains start at the posterior's mode, not at the optimum they are given: a normal
     prior on a, 3 std-errors off the least-squares value, moves the mode to the penalised least

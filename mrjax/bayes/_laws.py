@@ -64,8 +64,9 @@ from ..generalize import (
     nodes,
     record_order,
 )
+from ..models import exact_tangent
 from ._noise import check_noise
-from ._pertest import DATA_CHOICES, PredictiveBand, exact_model, predictive_band
+from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
 from ._priors import at_bounds
 from ._result import RHO, SIGMA, Posterior, PosteriorFront, arviz
 from ._sampler import Sampler, sample
@@ -477,7 +478,7 @@ def law_posterior(
     order = record_order(m)
     run_model = gm.resolved_model(cur, b.xdot, b.dt, m)
     residual = LawBlocks(run_model, coding)
-    exact = exact_model(run_model)
+    exact = exact_tangent(run_model)
     if gm.method != "joint":
         warnings.warn(f"posterior of {gm.method} laws: the chains start from them, not from "
                       "the joint least-squares optimum, and need a longer warmup",

@@ -24,7 +24,7 @@ from .._errors import InputError
 from ..data import Batch, Condition, as_batch, fit_mask, swarm_view
 from ..fitting import FitResult
 from ..generalize import Z_SCALE_MODELS, GeneralizedModel
-from ..models import AbstractModel, check_bounds, resolve_model
+from ..models import AbstractModel, check_bounds, exact_tangent, resolve_model
 from ..objective import residuals
 from ._noise import check_noise
 from ._priors import at_bounds
@@ -40,15 +40,6 @@ GAUGE: tuple[str, ...] = ("delta",)
 #: What the likelihood scores: the full `record`, or the swarm's `view` of it (every k-th
 #: sample, the first whole periods; see `mrjax.fitting.swarm_view`).
 DATA_CHOICES: tuple[str, ...] = ("record", "view")
-
-
-def exact_model(model: AbstractModel) -> AbstractModel | None:
-    """The resolved `model` differentiated exactly, where its derivatives are the L-stable
-    scheme's implicit tangent (an approximation: see `mrjax.models.integrate`); else None."""
-    if getattr(model, "scheme", None) == "sdirk" and getattr(model, "tangent", None) == \
-            "implicit":
-        return model.with_substeps(model.substeps, "sdirk", "exact")
-    return None
 
 
 class PerTestResidual(eqx.Module):
@@ -383,7 +374,7 @@ def posterior(
                   names=model.param_names, labels=batch.labels, sampler=sampler,
                   noise=noise, prior=prior, key=key, seed=seed, progress=progress,
                   units=model.units, gauge=GAUGE if model.name in Z_SCALE_MODELS else (),
-                  exact=None if (exact := exact_model(run_model)) is None
+                  exact=None if (exact := exact_tangent(run_model)) is None
                   else PerTestResidual(exact))
     for line in post.problems():
         warnings.warn(line, RuntimeWarning, stacklevel=2)

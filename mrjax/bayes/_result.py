@@ -155,8 +155,8 @@ class Posterior:
             coords["record"] = list(self.row_labels or map(str, range(R)))
         attrs = {"noise": self.noise, "seed": self.seed, "sampler": "blackjax NUTS",
                  "warmup": int(self.sampler.warmup), "dense_mass": int(self.sampler.dense_mass),
+                 "target_accept": float(self.sampler.target_accept),
                  "prior": "; ".join(f"{k}: {v}" for k, v in self.prior.items()) or "flat on box"}
-        attrs["target_accept"] = float(self.sampler.target_accept)
         if self.param_units is not None:
             attrs["units"] = ", ".join(f"{n} [{un}]" for n, un in zip(self.names,
                                                                       self.param_units))

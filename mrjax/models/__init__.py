@@ -40,4 +40,5 @@ from ._substeps import STEP_TARGET as STEP_TARGET
 from ._substeps import TRACED_SUBSTEPS as TRACED_SUBSTEPS
 from ._substeps import choose_substeps as choose_substeps
 from ._substeps import doubled_substeps as doubled_substeps
+from ._substeps import exact_tangent as exact_tangent
 from ._substeps import resolve_model as resolve_model
