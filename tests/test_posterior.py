@@ -182,11 +182,12 @@ def test_start_is_the_posterior_mode_with_its_hessian():
         kind, a, b, lo_i, hi_i = priors.prior_arrays(priors.check_priors(prior, names), names,
                                                     lo[i:i + 1], hi[i:i + 1])
         unit = jax.tree.map(lambda d: jnp.asarray(d[i:i + 1]), data)
-        z0, imm, soft, lo_f, hi_f, _ = core.start(Line(), est[i:i + 1], lo_i, hi_i, unit,
-                                                   (0, 1), "iid", names)
+        st = core.start(Line(), est[i:i + 1], lo_i, hi_i, unit, (0, 1), "iid", names)
+        z0, imm, soft, lo_f, hi_f = st.z0, st.imm, st.soft, st.lo, st.hi
+        assert not st.log.any()  # boxes reaching below 0: linear coordinates
         target = core.Target(residual=Line(), free=(0, 1), rows=(1,), noise="iid")
-        units = (unit, jnp.asarray(lo_f), jnp.asarray(hi_f), jnp.asarray(soft),
-                 jnp.asarray(est[i:i + 1]))
+        units = core.Unit(unit, jnp.asarray(lo_f), jnp.asarray(hi_f), jnp.asarray(soft),
+                          jnp.asarray(st.log), jnp.asarray(est[i:i + 1]))
         L = np.linalg.cholesky(imm)
         found = jax.device_get(core.find_mode(target, tuple(map(jnp.asarray, (kind, a, b))),
                                           units, jnp.asarray(z0), jnp.asarray(L)))
@@ -301,6 +302,135 @@ def test_soft_box_round_trip_and_jacobian():
         const = np.sum(np.log(d) + np.log1p(-np.exp(-(hi - lo) / d)))
         np.testing.assert_allclose(float(log_jacobian(u, lo, hi, d)) + const,
                                    np.sum(np.log(slope)), rtol=1e-9)
+
+
+def test_soft_box_in_log_coordinates():
+    """With `log`, the soft box runs in log theta (a lower bound of 0 taken as LOG_FLOOR x the
+    upper one): `from_box` inverts `to_box`, `box_slope` is its derivative, and `log_jacobian`
+    is log(d theta / du) up to the constant of the map in log theta."""
+    from mrjax.bayes import _priors as priors  # noqa: SLF001 - box_slope is internal
+
+    lo, hi = np.array([0.0, 2000.0, -5.0, 1.0]), np.array([2500.0, 2e5, 5.0, 3.0])
+    d, lg = np.array([0.01, 0.005, 0.2, 0.02]), np.array([True, True, False, True])
+    lo_t = np.log(np.where(lg, np.maximum(lo, priors.LOG_FLOOR * hi), 1.0))
+    lo_t, hi_t = np.where(lg, lo_t, lo), np.where(lg, np.log(np.where(lg, hi, 1.0)), hi)
+    const = np.sum(np.log(d) + np.log1p(-np.exp(-(hi_t - lo_t) / d)))
+    for th in (np.array([659.0, 39445.0, 0.3, 2.8]), np.array([1e-3, 2020.0, -4.9, 2.95])):
+        u = from_box(th, lo, hi, d, lg)
+        np.testing.assert_allclose(np.asarray(to_box(u, lo, hi, d, jnp.asarray(lg))), th,
+                                   rtol=1e-9)
+        jac = np.diag(np.asarray(jax.jacfwd(lambda v: to_box(v, lo, hi, d, jnp.asarray(lg)))(
+            jnp.asarray(u))))
+        np.testing.assert_allclose(priors.box_slope(u, lo, hi, d, lg), jac, rtol=1e-9)
+        np.testing.assert_allclose(float(log_jacobian(u, lo, hi, d, jnp.asarray(lg))) + const,
+                                   np.sum(np.log(jac)), rtol=1e-9)
+    # a positive unknown many standard deviations above its lower bound runs in log theta
+    from mrjax.bayes import _start as core  # noqa: SLF001
+
+    data, _ = line_data(sigma=0.1)
+    est, se, _ = ols(data)
+    st = core.start(Line(), est, np.array([[-10.0, 0.0]] * 2), np.array([[10.0, 10.0]] * 2),
+                    jax.tree.map(jnp.asarray, data), (0, 1), "iid", ("a", "b"))
+    assert np.all(est[:, 1] > core.LOG_AWAY * se[:, 1])
+    np.testing.assert_array_equal(st.log, [[False, True]] * 2)
+    post = sample(Line(), est, data, lower=[-10.0, 0.0], upper=[10.0, 10.0], names=("a", "b"),
+                  sampler=SHORT)
+    th = post.theta.reshape(2, -1, 2)
+    np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
+    np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.2)
+
+
+def test_linear_marginal_is_the_gaussian_integral():
+    """Known answer: the likelihood with linear unknowns integrated out (AR(1) noise, two
+    records with a masked gap, L = 1 and 2) equals the integral of `block_loglik` over them
+    (trapezoid on a grid of +-9 conditional sd), and the conditional's mean and covariance
+    equal the grid's moments."""
+    from mrjax.bayes import block_loglik, linear_marginal
+
+    rng = np.random.default_rng(5)
+    R, T = 2, 40
+    r = rng.standard_normal((R, T))
+    m = np.ones((R, T), bool)
+    m[0, 10:14] = m[1, :3] = False
+    log_sigma, v = np.log([0.7, 1.3]), np.arctanh(0.6)
+    for L in (1, 2):
+        A = rng.standard_normal((R, T, L))
+        A[..., 0] = 1.0  # an offset
+        ll, delta, C, d = jax.device_get(linear_marginal(((r, m),), (A,), log_sigma, v))
+        cov = np.diag(d) @ np.linalg.inv(C @ C.T) @ np.diag(d)
+        sd = np.sqrt(np.diag(cov))
+        axes = [delta[k] + sd[k] * np.linspace(-9, 9, 721 if L == 1 else 181) for k in range(L)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, L)
+        f = np.asarray(jax.vmap(lambda dl: block_loglik(r + A @ dl, m, log_sigma, v))(grid))
+        f = f.reshape([len(a) for a in axes])
+        top = f.max()
+        w = np.exp(f - top)
+        mass = w
+        for a in reversed(axes):
+            mass = np.trapezoid(mass, a, axis=-1)
+        np.testing.assert_allclose(top + np.log(mass), ll, rtol=0, atol=1e-8)
+        pw = (w / w.sum()).reshape(-1)
+        mean = pw @ grid
+        np.testing.assert_allclose(mean, delta, rtol=0, atol=1e-6 * sd.max())
+        np.testing.assert_allclose((grid - mean).T @ ((grid - mean) * pw[:, None]), cov,
+                                   rtol=1e-4)
+
+
+@pytest.mark.parametrize("linear", [("a",), ("a", "b")])
+def test_linear_unknowns_integrated_out(linear):
+    """Known answer: a line's unknowns are both linear; integrated out of the log-density and
+    drawn from their conditional, the posterior is still least squares (iid) and covers rho
+    with AR(1) noise like the sampled one. Same seed, same draws."""
+    data, _ = line_data()
+    est, se, _ = ols(data)
+    post = sample(Line(), est, data, linear=linear, **BOX)
+    assert post.linear == linear
+    th = post.theta.reshape(2, -1, 2)
+    np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
+    np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.15)
+    assert post.diagnostics()["r_hat_max"] < 1.02
+    assert not any("beyond its bounds" in ln for ln in post.problems())
+    theta = post.theta.copy()
+    theta[1, 0, 5, 0] = 10.5  # a draw beyond the box of a (upper 10): a warning line
+    import dataclasses
+
+    lines = dataclasses.replace(post, theta=theta).problems()
+    assert any("a, integrated out of the log-density, has 1 draw(s) beyond its bounds (most "
+               "on '1')" in ln for ln in lines), lines
+    np.testing.assert_array_equal(post.theta, sample(Line(), est, data, linear=linear,
+                                                     **BOX).theta)
+    data, _ = line_data(rho=0.8, seed=1)
+    est, se, _ = ols(data)
+    ar1 = sample(Line(), est, data, noise="ar1", linear=linear, **BOX)
+    full = sample(Line(), est, data, noise="ar1", **BOX)
+    assert ar1.linear == linear and full.linear == ()
+    lo, hi = ar1.interval("noise_rho", 0.999).T
+    assert np.all((lo < 0.8) & (0.8 < hi)), (lo, hi)
+    ratio = np.ptp(ar1.interval("b"), axis=1) / np.ptp(full.interval("b"), axis=1)
+    np.testing.assert_allclose(ratio, 1.0, atol=0.2)
+
+
+class BentLine(eqx.Module):
+    """A line whose slope enters as b^2: not affine in b."""
+
+    def __call__(self, theta, unit):
+        t, y, m = unit
+        return (((theta[0] + theta[1] ** 2 * t) - y)[None], m[None]),
+
+
+def test_linear_unknowns_kept_where_they_may_not_be_integrated_out():
+    """An unknown stays sampled where integrating it out would be wrong: a normal prior on it,
+    an optimum a few std-errors from its bound, or a residual not affine in it (declared
+    linear by mistake: the regressor check finds it)."""
+    data, _ = line_data()
+    est, se, _ = ols(data)
+    p = sample(Line(), est, data, linear=("a",), prior={"a": Normal(0.0, 1.0)}, **BOX)
+    assert p.linear == ()
+    near = dict(BOX, lower=[float(est[:, 0].max() - 3 * se[:, 0].min()), -10.0])
+    assert sample(Line(), est, data, linear=("a",), **near).linear == ()
+    bent = np.column_stack([est[:, 0], np.sqrt(est[:, 1])])
+    q = sample(BentLine(), bent, data, linear=("a", "b"), **BOX)
+    assert q.linear == ("a",)
 
 
 def test_near_a_bound_truncated_normal_without_divergences():

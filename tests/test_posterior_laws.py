@@ -76,6 +76,10 @@ def test_law_posterior_known_answer(laws):
     batch, sig, gm, lp = laws
     assert isinstance(lp, LawPosterior) and lp.data == "record"
     assert lp.posterior.names[:2] == ("c[0]", "c[1]")
+    # the node values of the laws of c, k and f0 (affine, constant regressors) are integrated
+    # out of the log-density, alpha's (its regressor z moves with beta, delta) are not
+    assert {n.split("@")[0] for n in lp.nodes.linear} == {"c", "k", "f0"}
+    assert lp.posterior.linear == ()
     hits = [covered(lp, truth(gm))]
     sig_ok = [(np.percentile(lp.posterior.sigma[0], 2.5, axis=(0, 1)) <= sig[list(
         map(batch.labels.index, lp.records))]) & (sig[list(map(batch.labels.index, lp.records))]

@@ -37,6 +37,7 @@ from ._laws import read_law_draws as read_law_draws
 from ._laws import with_coefficients as with_coefficients
 from ._noise import NOISE_MODELS as NOISE_MODELS
 from ._noise import block_loglik as block_loglik
+from ._noise import linear_marginal as linear_marginal
 from ._pertest import DATA_CHOICES as DATA_CHOICES
 from ._pertest import PerTestResidual as PerTestResidual
 from ._pertest import PredictiveBand as PredictiveBand

@@ -494,7 +494,8 @@ def law_posterior(
                   labels=("laws",), row_labels=labels,
                   sampler=sampler, noise=noise, prior=prior, key=key, seed=seed,
                   progress=progress, unit_dim="laws", units=units,
-                  exact=None if exact is None else LawBlocks(exact, coding))
+                  exact=None if exact is None else LawBlocks(exact, coding),
+                  linear=tuple(n for n in names if n.split("@")[0] in model.fixed_params))
     Q = len(free)
     C, N = post.n_chains, post.n_draws
     coef = np.asarray(_coefficients(coding, jnp.asarray(post.theta[0].reshape(-1, Q))))
@@ -504,8 +505,8 @@ def law_posterior(
     cpost = dataclasses.replace(
         post, names=cnames, theta=coef, theta0=coef0[None], lower=np.full((1, V), -np.inf),
         upper=np.full((1, V), np.inf), free=np.ptp(coef.reshape(-1, V), axis=0) > 0,
-        param_units=cunits)
-    for line in cpost.problems():
+        param_units=cunits, linear=())
+    for line in cpost.problems() + [ln for ln in post.problems() if "integrated out" in ln]:
         warnings.warn(line, RuntimeWarning, stacklevel=2)
     # the band's noise levels: the residuals' RMS of every record at the median laws
     med = with_coefficients(gm, np.median(coef.reshape(-1, V), axis=0))

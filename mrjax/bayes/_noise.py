@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
@@ -44,6 +45,31 @@ def log1m_tanh2(v: Float[ArrayLike, "*S"]) -> Float[Array, "*S"]:
     return 2.0 * (math.log(2.0) - a - jnp.log1p(jnp.exp(-2.0 * a)))
 
 
+def whiten(
+    r: Float[ArrayLike, "R T"], mask: Bool[ArrayLike, "R T"], v: Float[ArrayLike, ""] | None
+) -> tuple[Float[Array, "R T"], Float[Array, " R"]]:
+    """The residuals `r` (R, T) [N] mapped to independent ones of each record's marginal level:
+    `(w, n_cont)` with $\\sum_t w_t^2 / \\sigma^2$ the likelihood's quadratic form. With AR(1)
+    noise ($\\rho = \\tanh v$), $w_t = (e_t - \\rho e_{t-1}) / \\sqrt{1 - \\rho^2}$ where
+    sample `t` follows a scored one (`n_cont` (R,) of them), $w_t = e_t$ at a restart; 0 on
+    unscored samples. Linear in `r`."""
+    r, mask = jnp.asarray(r), jnp.asarray(mask)
+    e = jnp.where(mask, r, 0.0)
+    if v is None:
+        return e, jnp.zeros(e.shape[0], e.dtype)
+    cont = mask[:, 1:] & mask[:, :-1]  # sample t follows a scored sample t - 1
+    innov = (e[:, 1:] - jnp.tanh(v) * e[:, :-1]) * jnp.exp(-0.5 * log1m_tanh2(v))
+    w = jnp.concatenate([e[:, :1], jnp.where(cont, innov, e[:, 1:])], axis=1)
+    return w, jnp.sum(cont, axis=1)
+
+
+def _base(mask, log_sigma, n_cont, v):
+    """Per record: the log-likelihood's terms that do not depend on the residuals."""
+    n = jnp.sum(mask, axis=1)
+    base = n * (_LOG_2PI + 2.0 * log_sigma)
+    return base if v is None else base + n_cont * log1m_tanh2(v)
+
+
 def block_loglik(
     r: Float[ArrayLike, "R T"],
     mask: Bool[ArrayLike, "R T"],
@@ -57,23 +83,48 @@ def block_loglik(
     independent noise. Non-finite residuals on scored samples give NaN or inf (the caller maps
     them to `-inf`); unscored samples are never read.
     """
-    r, mask = jnp.asarray(r), jnp.asarray(mask)
-    e = jnp.where(mask, r, 0.0)
-    inv_var = jnp.exp(-2.0 * log_sigma)
-    n = jnp.sum(mask, axis=1)
-    base = n * (_LOG_2PI + 2.0 * log_sigma)
-    if v is None:
-        return -0.5 * jnp.sum(base + inv_var * jnp.sum(e * e, axis=1))
-    rho = jnp.tanh(v)
-    l1m = log1m_tanh2(v)
-    cont = mask[:, 1:] & mask[:, :-1]  # sample t follows a scored sample t - 1
-    innov = jnp.where(cont, e[:, 1:] - rho * e[:, :-1], 0.0)
-    start = jnp.where(cont, 0.0, e[:, 1:])  # restarts: first scored sample and after gaps
-    ss_start = e[:, 0] ** 2 + jnp.sum(start * start, axis=1)
-    ss_cont = jnp.sum(innov * innov, axis=1)
-    n_cont = jnp.sum(cont, axis=1)
-    quad = inv_var * (ss_start + ss_cont * jnp.exp(-l1m))
-    return -0.5 * jnp.sum(base + n_cont * l1m + quad)
+    mask = jnp.asarray(mask)
+    w, n_cont = whiten(r, mask, v)
+    quad = jnp.exp(-2.0 * log_sigma) * jnp.sum(w * w, axis=1)
+    return -0.5 * jnp.sum(_base(mask, log_sigma, n_cont, v) + quad)
+
+
+def linear_marginal(
+    blocks, regressors, log_sigma: Float[ArrayLike, " R"], v: Float[ArrayLike, ""] | None
+) -> tuple[Float[Array, ""], Float[Array, " L"], Float[Array, "L L"], Float[Array, " L"]]:
+    """The likelihood with L linear unknowns integrated out, and their conditional.
+
+    The residuals are affine in the unknowns $\\beta$ (L,): $r(\\beta) = r + A\\,\\delta$,
+    $\\delta = \\beta - \\beta_0$, with `blocks` `((r (R_b, T_b), mask), ...)` at
+    $\\beta_0$ and `regressors` `(A (R_b, T_b, L), ...)` [N per unit of each unknown]. With a
+    flat prior on $\\beta$, the Gaussian integral over it is the likelihood at its
+    conditional mode times $(2\\pi)^{L/2} \\det(M)^{-1/2}$, $M = \\sum A_w^T A_w / \\sigma^2$
+    ($A_w$ the whitened regressors, :func:`whiten`).
+
+    **Returns:** `(log marginal likelihood, delta_hat (L,), C (L, L), d (L,))`: the conditional
+    of $\\delta$ is $N(\\hat\\delta, M^{-1})$ with $M^{-1} = D C^{-T} C^{-1} D$, $D$ =
+    diag(`d`), $C$ the Cholesky factor of $D M D$ (a draw: $\\hat\\delta + d \\odot
+    C^{-T} \\varepsilon$). The flat prior's density, constant, is left out.
+    """
+    ll, M, c, off = 0.0, 0.0, 0.0, 0
+    for (r, m), A in zip(blocks, regressors):
+        m = jnp.asarray(m)
+        n = m.shape[0]
+        ls = log_sigma[off:off + n]
+        off += n
+        w, n_cont = whiten(r, m, v)
+        Aw = jax.vmap(lambda a: whiten(a, m, v)[0], in_axes=-1, out_axes=-1)(A)
+        iv = jnp.exp(-2.0 * ls)
+        ll = ll - 0.5 * jnp.sum(_base(m, ls, n_cont, v) + iv * jnp.sum(w * w, axis=1))
+        M = M + jnp.einsum("rtl,r,rtk->lk", Aw, iv, Aw)
+        c = c + jnp.einsum("rtl,r,rt->l", Aw, iv, w)
+    d = 1.0 / jnp.sqrt(jnp.diagonal(M))
+    C = jnp.linalg.cholesky(M * d[:, None] * d[None, :])
+    y = jax.scipy.linalg.cho_solve((C, True), d * c)
+    L = c.shape[0]
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(C))) - 2.0 * jnp.sum(jnp.log(d))
+    ll = ll + 0.5 * jnp.dot(d * c, y) + 0.5 * (L * _LOG_2PI - logdet)
+    return ll, -d * y, C, d
 
 
 def noise_start(blocks: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, float, np.ndarray]:

@@ -375,7 +375,7 @@ def posterior(
                   noise=noise, prior=prior, key=key, seed=seed, progress=progress,
                   units=model.units, gauge=GAUGE if model.name in Z_SCALE_MODELS else (),
                   exact=None if (exact := exact_tangent(run_model)) is None
-                  else PerTestResidual(exact))
+                  else PerTestResidual(exact), linear=model.fixed_params)
     for line in post.problems():
         warnings.warn(line, RuntimeWarning, stacklevel=2)
     return TestPosterior(posterior=post, model=model, fit=result, data=choice,

@@ -48,7 +48,8 @@ class Posterior:
         `warmup_steps` (U, C, W) leapfrog steps of each warmup step (None if not kept);
         `gradient_error` the largest whitened error of an approximate gradient at the start
         (None where the gradient is exact; above `GRADIENT_TOL` the exact one was used, see
-        `mrjax.bayes.sample`).
+        `mrjax.bayes.sample`); `linear` the names of the unknowns integrated out of the
+        log-density and drawn from their conditional at each draw (`mrjax.bayes.sample`).
     - `theta0` (U, K) the optimum the chains started around; `lower`, `upper` (U, K) the box
         (after uniform priors); `free` (K,) which unknowns were sampled.
     - `noise`, `prior` {name: description}, `sampler` (the `mrjax.bayes.Sampler`), `seed`,
@@ -79,6 +80,7 @@ class Posterior:
     param_units: tuple[str, ...] | None = None
     warmup_steps: np.ndarray | None = None
     gradient_error: float | None = None
+    linear: tuple[str, ...] = ()
 
     # ----------------------------------------------------------------------------- shapes
     @property
@@ -156,6 +158,7 @@ class Posterior:
         attrs = {"noise": self.noise, "seed": self.seed, "sampler": "blackjax NUTS",
                  "warmup": int(self.sampler.warmup), "dense_mass": int(self.sampler.dense_mass),
                  "target_accept": float(self.sampler.target_accept),
+                 "integrated_out": ", ".join(self.linear) or "none",
                  "prior": "; ".join(f"{k}: {v}" for k, v in self.prior.items()) or "flat on box"}
         if self.param_units is not None:
             attrs["units"] = ", ".join(f"{n} [{un}]" for n, un in zip(self.names,
@@ -237,7 +240,8 @@ class Posterior:
 
     def problems(self) -> list[str]:
         """One line per convergence problem: R-hat > `RHAT_MAX`, bulk or tail ESS < `ESS_MIN`,
-        divergent transitions; empty when none."""
+        divergent transitions, unknowns held, draws of an unknown integrated out beyond its
+        bounds; empty when none."""
         out = []
 
         def units(n: int) -> str:  # "3 conditions", "1 condition", "the laws"
@@ -272,6 +276,16 @@ class Posterior:
                        f"a direction of the unknowns undetermined (a symmetry of the model, "
                        f"or no effect on these records); the others' posterior is "
                        f"conditional on it")
+        for n in self.linear:  # integrated out: a flat prior on the whole line, not the box
+            j = self.names.index(n)
+            th = self.theta[..., j]
+            out_box = (th < self.lower[:, None, None, j]) | (th > self.upper[:, None, None, j])
+            if out_box.any():
+                i = int(np.argmax(out_box.sum(axis=(1, 2))))
+                out.append(f"posterior: {n}, integrated out of the log-density, has "
+                           f"{int(out_box.sum())} draw(s) beyond its bounds (most on "
+                           f"{self.labels[i]!r}): its posterior reaches a bound, where the "
+                           f"integral over the whole line is not the box's")
         div = self.diverging.sum(axis=(1, 2))
         if div.sum():
             i = int(np.argmax(div))
@@ -319,6 +333,7 @@ class Posterior:
         doc = {"sampler": "blackjax NUTS", "noise": self.noise, "draws": int(s.draws),
                "chains": int(s.chains), "warmup": int(s.warmup), "dense_mass": bool(s.dense_mass),
                "target_accept": float(s.target_accept),
+               "integrated_out": list(self.linear),
                "seed": self.seed, "prior": self.prior or "flat on the bounds",
                "diagnostics": self.diagnostics(), "warnings": self.problems(),
                "timings_s": dict(self.timings), "conditions": units}

@@ -18,8 +18,10 @@ unknown held per direction the data leave undetermined), and draws with `blackja
 after another or a unit's chains at once on a CPU, vmapped on an accelerator: see
 `Sampler.vectorize`).
 
-The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the free unknowns in the bounded
-map; `log s` [log N] the records' noise levels, with `"ar1"` those of the innovations,
+The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the unknowns it moves in the
+bounded map (the free ones, less those held in every unit and the linear ones integrated out:
+see `linear` in :func:`sample`); `log s` [log N] the records' noise levels, with `"ar1"`
+those of the innovations,
 $s = \\sigma \\sqrt{1 - \\rho^2}$ ($\\sigma$ the marginal level that is reported): on a real
 record $\\rho \\to 1$ and the data fix $s$ tightly but $\\sigma$ only through each record's
 first sample, so $(\\log\\sigma, v)$ is a long narrow ridge that NUTS crosses in hundreds of
@@ -44,13 +46,26 @@ from jaxtyping import ArrayLike
 
 from .._errors import InputError
 from ._noise import check_noise, log1m_tanh2
-from ._priors import check_priors, prior_arrays, to_box
+from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._start import GRADIENT_TOL, Target, find_mode, gradient_error, laplace, log_density, start
+from ._start import (
+    GRADIENT_TOL,
+    Target,
+    Unit,
+    collapsible,
+    find_mode,
+    gradient_error,
+    laplace,
+    linear_draw,
+    log_density,
+    start,
+)
 
 #: Chains start at the mode plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the mode).
 JITTER = 1.0
+#: Draws whose linear unknowns (integrated out of the log-density) are drawn side by side.
+LINEAR_BATCH = 64
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
 #: one unit at a time, or none (one chain after another).
 VECTORIZE: tuple[str, ...] = ("all", "chains", "none")
@@ -232,13 +247,25 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
     else:  # one unit after another
         trace, step, warm = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
     # the box map and the noise transforms, in the program: draws come back in SI units
-    data, lo, hi, soft, theta_full = units
     free = np.asarray(target.free, int)
     Kf, R = len(free), sum(target.rows)
     z = trace[0]
-    th = to_box(z[..., :Kf], lo[:, None, None, :], hi[:, None, None, :], soft[:, None, None, :])
-    theta = jnp.broadcast_to(theta_full[:, None, None, :], z.shape[:3] + theta_full.shape[-1:])
+    th = to_box(z[..., :Kf], *(a[:, None, None, :] for a in (units.lo, units.hi, units.soft,
+                                                               units.log)))
+    theta = jnp.broadcast_to(units.theta[:, None, None, :],
+                             z.shape[:3] + units.theta.shape[-1:])
     theta = theta.at[..., free].set(th)
+    if target.linear:  # the unknowns integrated out: drawn from their conditional at each draw
+        def draws(unit, zu, k):
+            flat = zu.reshape(-1, zu.shape[-1])
+            ks = jax.random.split(k, flat.shape[0])
+            out = jax.lax.map(lambda a: linear_draw(target, prior, unit, *a), (flat, ks),
+                              batch_size=LINEAR_BATCH)
+            return out.reshape(zu.shape[:-1] + out.shape[-1:])
+
+        lin_keys = jax.vmap(lambda k: jax.random.fold_in(k[0], 1))(keys)
+        beta = jax.lax.map(lambda a: draws(*a), (units, z, lin_keys))
+        theta = theta.at[..., np.asarray(target.linear, int)].set(beta)
     log_sigma = z[..., Kf:Kf + R]
     rho = None
     if target.noise == "ar1":
@@ -268,6 +295,7 @@ def sample(
     units: Sequence[str] | None = None,
     gauge: Sequence[str] = (),
     exact: Callable | None = None,
+    linear: Sequence[str] = (),
 ) -> Posterior:
     """Sample the posterior of a residual function's unknowns with NUTS, on every unit at once.
 
@@ -303,6 +331,14 @@ def sample(
         (`Posterior.gradient_error`; modified Bouc-Wen on UTFSM test 25mm0x1Hz1A: up to
         12,000, and its step size fell to 3e-5 with every tree at 1,023 steps; 0.007 on
         10mm1Hz0x5A, which keeps the cheaper implicit tangent).
+    - `linear`: names of unknowns the residuals are affine in, with a regressor that no
+        unknown changes (a model's `fixed_params`, e.g. the force offset `f0`). Where their
+        prior is flat and the optimum lies well inside their box in every unit
+        (:func:`mrjax.bayes._start.collapsible`, which also checks the regressor), the
+        log-density integrates them out in closed form (:func:`mrjax.bayes.linear_marginal`)
+        and each draw's are drawn from their Gaussian conditional: fewer dimensions for NUTS,
+        and no funnel of an offset against the AR(1) coefficient. The draws are those of the
+        same posterior. `Posterior.linear` names them.
 
     The start is built from `theta0` and the Gauss-Newton covariance of the residuals there
     (Jacobian by forward mode, on the likelihood's own data). Where that covariance spans more
@@ -349,38 +385,68 @@ def sample(
     shapes = jax.eval_shape(residual, jnp.asarray(theta0[0]),
                             jax.tree.map(lambda x: x[0], data))
     rows = tuple(int(s[0].shape[0]) for s in shapes)
-    target = Target(residual=residual, free=free, rows=rows, noise=noise,
-                     forward=sampler.gradient == "forward")
-    z0, imm, soft, lo_f, hi_f, _ = start(residual, theta0, lo[:, free], hi[:, free], data,
-                                          free, noise, names, tuple(gauge))
+    st = start(residual, theta0, lo[:, free], hi[:, free], data, free, noise, names,
+               tuple(gauge))
     lo, hi = lo.copy(), hi.copy()
-    lo[:, free], hi[:, free] = lo_f, hi_f
+    lo[:, free], hi[:, free] = st.lo, st.hi
+    # an unknown held in every unit is no unknown of the sampler: neither a dimension nor a
+    # forward-mode tangent (modified Bouc-Wen: delta and gamma, 2 of 10)
+    Kf = len(free)
+    every = [k for k in range(Kf) if not st.held[:, k].all()]
+    keep = np.concatenate([every, np.arange(Kf, st.z0.shape[1])]).astype(int)
+    target = Target(residual=residual, free=tuple(free[k] for k in every), rows=rows,
+                    noise=noise, forward=sampler.gradient == "forward")
     # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
     # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
     # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
-    L = np.linalg.cholesky(imm)
-    units_data = (data, jnp.asarray(lo[:, free]), jnp.asarray(hi[:, free]), jnp.asarray(soft),
-                  jnp.asarray(theta0))
+    z0, L = st.z0[:, keep], np.linalg.cholesky(st.imm[:, keep][:, :, keep])
+
+    def unit_arrays(moved, lin):
+        return Unit(data=data, lo=jnp.asarray(st.lo[:, moved]), hi=jnp.asarray(st.hi[:, moved]),
+                    soft=jnp.asarray(st.soft[:, moved]), log=jnp.asarray(st.log[:, moved]),
+                    theta=jnp.asarray(theta0),
+                    regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians))
+
+    units_data = unit_arrays(every, [])
     prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
     t0 = time.perf_counter()
     # the polished optimum is the least-squares one on the fit's data, not the mode of this
     # posterior (AR(1) noise, the view, the soft box): a damped Newton search moves the start
     # there, and the Hessian there replaces the Gauss-Newton metric
-    def to_mode(t):
-        return laplace(*jax.device_get(find_mode(t, prior_data, units_data, jnp.asarray(z0),
-                                                 jnp.asarray(L))), z0, L)
+    def to_mode(t, z, m):
+        return laplace(*jax.device_get(find_mode(t, prior_data, units_data, jnp.asarray(z),
+                                                 jnp.asarray(m))), z, m)
 
-    z_mode, L_mode = to_mode(target)
+    z0, L = to_mode(target, z0, L)
+    # linear unknowns well inside their box at the mode: integrated out, the others' start
+    # the mode's (the marginal of its Gaussian approximation)
+    Km = len(every)
+    cov = L @ np.swapaxes(L, 1, 2)
+    with np.errstate(invalid="ignore"):
+        sd_u = np.full((U, Kf), np.nan)
+        sd_u[:, every] = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)[:, :Km])
+    u_mode = np.zeros((U, Kf))
+    u_mode[:, every] = z0[:, :Km]
+    centre = np.asarray(to_box(u_mode, st.lo, st.hi, st.soft, st.log))
+    sd = sd_u * box_slope(u_mode, st.lo, st.hi, st.soft, st.log)
+    lin = collapsible(residual, theta0, data, free, st, kind,
+                      [names.index(n) for n in linear if n in names], centre, sd)
+    if lin:
+        moved = [k for k in every if k not in lin]
+        keep = np.concatenate([[every.index(k) for k in moved],
+                               np.arange(Km, z0.shape[1])]).astype(int)
+        z0, L = z0[:, keep], np.linalg.cholesky(cov[:, keep][:, :, keep])
+        target = dataclasses.replace(target, free=tuple(free[k] for k in moved),
+                                     linear=tuple(free[k] for k in lin))
+        units_data = unit_arrays(moved, lin)
     grad_error = None
     if exact is not None:  # an approximate derivative, kept where it is close around the mode
-        exact_target = Target(residual=exact, free=free, rows=rows, noise=noise,
-                              forward=target.forward)
+        exact_target = dataclasses.replace(target, residual=exact)
         grad_error = float(gradient_error(target, exact_target, prior_data, units_data,
-                                          jnp.asarray(z_mode), jnp.asarray(L_mode)))
+                                          jnp.asarray(z0), jnp.asarray(L)))
         if not grad_error <= GRADIENT_TOL:  # the mode and its Hessian again, exactly
             target = exact_target
-            z_mode, L_mode = to_mode(target)
-    z0, L = z_mode, L_mode
+            z0, L = to_mode(target, z0, L)
     t_mode = time.perf_counter() - t0
     if key is None:
         key = jax.random.key(int(seed))
@@ -415,6 +481,7 @@ def sample(
         diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
         accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
         warmup_steps=np.asarray(warm_steps, int), gradient_error=grad_error,
+        linear=tuple(names[j] for j in target.linear),
         theta0=theta0, lower=lo, upper=hi, free=np.isin(np.arange(K), free), noise=noise,
         prior=desc, sampler=sampler, seed=int(seed), timings={"sample": wall, "mode": t_mode},
         param_units=None if units is None else tuple(units))

@@ -13,14 +13,15 @@ chains start with which mass matrix.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._noise import block_loglik, log1m_tanh2, noise_start
-from ._priors import box_slope, from_box, log_jacobian, log_prior, to_box
+from ._noise import block_loglik, linear_marginal, log1m_tanh2, noise_start
+from ._priors import FLAT, box_slope, from_box, log_bounds, log_jacobian, log_prior, to_box
 
 #: Variance (in the bounded map's `u`) given to an unknown whose Jacobian variance is undefined
 #: (not identifiable, or at a bound: its softness is then its box width, and a posterior that
@@ -41,19 +42,55 @@ SOFTNESS = 0.5
 #: A direction of the unknowns whose Gauss-Newton standard deviation exceeds this many box
 #: widths is undetermined by the data: one unknown along it is held (see `undetermined`).
 UNDETERMINED = 1.0
+#: An unknown with a lower bound >= 0 whose optimum lies at least this many starting standard
+#: deviations above it runs in log coordinates (`mrjax.bayes.to_box`): the damper models'
+#: scale parameters trade off as products (modified Bouc-Wen on a UTFSM view: c1, alpha and
+#: beta), a curved ridge in linear coordinates. In the posterior's whitened coordinates, the
+#: Hessian's largest eigenvalue at its draws fell from 6.2 to 4.3 (median) and its smallest
+#: rose from 0.13 to 0.21 (`benchmarks/posterior_geometry.py`). An unknown near its lower
+#: bound keeps the linear map, which near the bound is already exponential.
+LOG_AWAY = 10.0
+#: A linear unknown is integrated out of the log-density (:func:`collapsible`) where its
+#: optimum lies at least this many starting standard deviations inside its box, and where its
+#: regressor at a second point differs by at most `AFFINE_TOL` of its largest entry.
+#: Integrating out modified Bouc-Wen's f0 and k1 (AR(1) noise on a UTFSM view) removed the
+#: funnel that f0 and rho make (the innovations see f0 only through (1 - rho) f0).
+COLLAPSE_MARGIN = 8.0
+AFFINE_TOL = 1e-9
 #: A `gauge` unknown is held for an undetermined direction where its component (in box
 #: widths) is at least this share of the largest one.
 GAUGE_SHARE = 0.1
 
 
 class Target(eqx.Module):
-    """What the compiled log-density needs that is the same for every unit (static)."""
+    """What the compiled log-density needs that is the same for every unit (static): the
+    residual function, the unknowns the sampler moves (`free`) and those integrated out
+    (`linear`, see :func:`mrjax.bayes.linear_marginal`), records per block, the noise model,
+    and whether the residuals are differentiated in forward mode."""
 
     residual: Callable
     free: tuple[int, ...] = eqx.field(static=True)
     rows: tuple[int, ...] = eqx.field(static=True)  # records per block
     noise: str = eqx.field(static=True)
     forward: bool = eqx.field(static=True, default=False)
+    linear: tuple[int, ...] = eqx.field(static=True, default=())
+
+
+class Unit(NamedTuple):
+    """One unit's arrays for the compiled log-density (a pytree; a leading unit axis where
+    batched): its `data`; the moved unknowns' box `lo`, `hi` (SI units), the bounded map's
+    softness `soft` and `log` (bool) which of them run in log coordinates
+    (`mrjax.bayes.to_box`); `theta` (K,) the optimum, which gives the held unknowns and the
+    reference of the linear ones; `regressors`, per residual block (R_b, T_b, L) the
+    derivative of the residuals in the linear unknowns integrated out (constant)."""
+
+    data: Any
+    lo: Any
+    hi: Any
+    soft: Any
+    log: Any
+    theta: Any
+    regressors: tuple = ()
 
 
 def forward_values(residual: Callable, theta_full, free, th_free, data):
@@ -80,9 +117,9 @@ def forward_values(residual: Callable, theta_full, free, th_free, data):
     return f(th_free)
 
 
-def log_density(target: Target, prior, unit, z):
-    """Log posterior density (up to a constant) of one unit at `z`; NaN or inf -> -inf."""
-    data, lo, hi, soft, theta_full = unit
+def _likelihood(target: Target, prior, unit: Unit, z):
+    """Log prior + log-Jacobian + log-likelihood of one unit at `z`, and the blocks' noise
+    (log sigma, v) and residuals (the linear unknowns at their reference)."""
     kind, a, b = prior
     Kf, R = len(target.free), sum(target.rows)
     free = np.asarray(target.free, int)
@@ -90,20 +127,42 @@ def log_density(target: Target, prior, unit, z):
     v = z[Kf + R] if target.noise == "ar1" else None
     if v is not None:  # the position holds the innovations' level: the marginal one from it
         log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
-    th_free = to_box(u, lo, hi, soft)
-    theta = theta_full.at[free].set(th_free)
-    blocks = target.residual(theta, data)
+    th_free = to_box(u, unit.lo, unit.hi, unit.soft, unit.log)
+    theta = unit.theta.at[free].set(th_free)
+    blocks = target.residual(theta, unit.data)
     if target.forward:  # the masks above; their values (dead code there) from forward mode
-        blocks = tuple(zip(forward_values(target.residual, theta_full, free, th_free, data),
-                           (m for _, m in blocks)))
-    lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(u, lo, hi, soft)
-    off = 0
-    for (r, m), n in zip(blocks, target.rows):
-        lp = lp + block_loglik(r, m, log_sigma[off:off + n], v)
-        off += n
+        blocks = tuple(zip(forward_values(target.residual, unit.theta, free, th_free,
+                                          unit.data), (m for _, m in blocks)))
+    lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(
+        u, unit.lo, unit.hi, unit.soft, unit.log)
     if v is not None:
         lp = lp + log1m_tanh2(v)  # uniform prior on rho = tanh v in (-1, 1)
+    return lp, blocks, log_sigma, v
+
+
+def log_density(target: Target, prior, unit: Unit, z):
+    """Log posterior density (up to a constant) of one unit at `z`; NaN or inf -> -inf. The
+    linear unknowns of `target.linear` are integrated out (:func:`mrjax.bayes.linear_marginal`)."""
+    lp, blocks, log_sigma, v = _likelihood(target, prior, unit, z)
+    if target.linear:
+        lp = lp + linear_marginal(blocks, unit.regressors, log_sigma, v)[0]
+    else:
+        off = 0
+        for (r, m), n in zip(blocks, target.rows):
+            lp = lp + block_loglik(r, m, log_sigma[off:off + n], v)
+            off += n
     return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+
+
+def linear_draw(target: Target, prior, unit: Unit, z, key):
+    """The linear unknowns integrated out of the log-density, drawn from their Gaussian
+    conditional at `z` (SI units, (L,)): with `z` a posterior draw, a draw of the joint
+    posterior. Non-finite where the residuals are."""
+    _, blocks, log_sigma, v = _likelihood(target, prior, unit, z)
+    _, delta, C, d = linear_marginal(blocks, unit.regressors, log_sigma, v)
+    eps = jax.random.normal(key, delta.shape, delta.dtype)
+    delta = delta + d * jax.scipy.linalg.solve_triangular(C, eps, lower=True, trans="T")
+    return unit.theta[np.asarray(target.linear, int)] + delta
 
 
 #: Damped Newton steps of the mode search that moves the start onto the posterior's mode
@@ -261,17 +320,36 @@ def undetermined(H: np.ndarray, width: np.ndarray, names: Sequence[str],
     return held
 
 
-def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
-    """Host: the sampler's start `z0` (U, D), inverse mass matrix (U, D, D), the bounded map's
-    softness (U, Kf) and box (U, Kf) per unit (`lo`, `hi` the free unknowns' boxes), and the
-    unknowns held (U, Kf) bool, from the optimum and the Gauss-Newton covariance of the
-    residuals there (the likelihood's own data: records or views, every block)."""
+class Start(NamedTuple):
+    """Host arrays of :func:`start`, per unit (U leading) and free unknown (Kf): `z0` (U, D)
+    and `imm` (U, D, D) the position and inverse mass matrix; the bounded map's `soft`,
+    box `lo`, `hi` and `log` coordinates; `held` (U, Kf) the unknowns held; `sd` (U, Kf) the
+    starting standard deviations [SI] (NaN where undefined); `jacobians`, per residual block,
+    (U, R_b, T_b, Kf) the residuals' derivatives at the optimum."""
+
+    z0: np.ndarray
+    imm: np.ndarray
+    soft: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    held: np.ndarray
+    log: np.ndarray
+    sd: np.ndarray
+    jacobians: tuple
+
+
+def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()) -> Start:
+    """Host: the sampler's start (:class:`Start`) from the optimum and the Gauss-Newton
+    covariance of the residuals there (the likelihood's own data: records or views, every
+    block): `lo`, `hi` (U, Kf) the free unknowns' boxes. An unknown with a lower bound >= 0
+    and an optimum at least `LOG_AWAY` starting standard deviations above it runs in log
+    coordinates (`mrjax.bayes.to_box`)."""
     vals, masks, jacs = jax.device_get(linearize(residual, tuple(free), jnp.asarray(theta0),
                                                   data))
     idx = np.asarray(free, int)
     Kf = idx.size
     lo, hi = np.array(lo, float), np.array(hi, float)
-    z0, imm, soft, held_all = [], [], [], []
+    z0, imm, soft, held_all, logs, sds = [], [], [], [], [], []
     for i in range(theta0.shape[0]):
         blocks = [(np.asarray(r[i]), np.asarray(m[i])) for r, m in zip(vals, masks)]
         sig, rho, n = noise_start(blocks)
@@ -295,9 +373,14 @@ def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
         Hk = H[np.ix_(keep, keep)]
         if keep.size and np.all(np.isfinite(Hk)):
             cov[np.ix_(keep, keep)] = np.linalg.pinv(Hk, rcond=1e-12, hermitian=True)
-        d = softness(cov, lo[i], hi[i])
-        u0 = from_box(theta0[i, idx], lo[i], hi[i], d)
-        cu = u_cov(cov, box_slope(u0, lo[i], hi[i], d))
+        with np.errstate(invalid="ignore"):
+            sd = np.sqrt(np.diag(cov))
+        th_i = np.clip(theta0[i, idx], lo[i], hi[i])
+        lg = ((lo[i] >= 0.0) & (hi[i] > lo[i]) & np.isfinite(sd) & (sd > 0)
+              & (th_i - lo[i] >= LOG_AWAY * np.where(np.isfinite(sd), sd, np.inf)))
+        d = softness(cov, lo[i], hi[i], lg, th_i)
+        u0 = from_box(th_i, lo[i], hi[i], d, lg)
+        cu = u_cov(cov, box_slope(u0, lo[i], hi[i], d, lg))
         point = hi[i] <= lo[i]  # held: `u` a nuisance of logistic density (variance pi^2 / 3)
         cu[point, :] = cu[:, point] = 0.0
         cu[point, point] = np.pi ** 2 / 3.0
@@ -315,17 +398,66 @@ def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()):
         imm.append(M)
         soft.append(d)
         held_all.append(held_mask)
-    return np.stack(z0), np.stack(imm), np.stack(soft), lo, hi, np.stack(held_all)
+        logs.append(lg)
+        sds.append(sd)
+    return Start(np.stack(z0), np.stack(imm), np.stack(soft), lo, hi, np.stack(held_all),
+                 np.stack(logs), np.stack(sds), tuple(jacs))
 
 
-def softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The bounded map's softness `d` (Kf,) [SI]: `SOFTNESS` x the starting standard deviation
-    of each unknown, within [1e-9, 1] x its box width (the box width where undefined)."""
+def collapsible(residual, theta0, data, free, st: Start, kind, candidates, centre,
+                sd) -> list[int]:
+    """Host: which of the `candidates` (indices of unknowns the residuals are declared affine
+    in, with a regressor no unknown changes: a model's `fixed_params`) the log-density
+    integrates out (:func:`mrjax.bayes.linear_marginal`), as positions in `free`. One is
+    where, in every unit, it is free and not held, its prior flat (`kind` FLAT), the
+    posterior's mode `centre` (U, Kf) at least `COLLAPSE_MARGIN` of its standard deviations
+    `sd` (U, Kf) inside its box (the Gaussian integral then leaves out a negligible mass
+    beyond it), and its regressor is the same at a second point (the optimum `theta0` moved
+    half a starting standard deviation in every free unknown: the declaration checked)."""
+    pos = [list(free).index(j) for j in candidates if j in free and kind[j] == FLAT]
+    th = np.clip(np.asarray(theta0, float)[:, np.asarray(free, int)], st.lo, st.hi)
+    ok = []
+    for k in pos:
+        s, c = sd[:, k], centre[:, k]
+        if (st.held[:, k].any() or not np.all(np.isfinite(s) & (s > 0) & np.isfinite(c))
+                or np.any(c - st.lo[:, k] < COLLAPSE_MARGIN * s)
+                or np.any(st.hi[:, k] - c < COLLAPSE_MARGIN * s)):
+            continue
+        ok.append(k)
+    if not ok:
+        return []
+    step = np.where(np.isfinite(st.sd) & ~st.held, 0.5 * st.sd, 0.0)
+    moved = np.asarray(theta0, float).copy()
+    moved[:, np.asarray(free, int)] = np.clip(th + step, st.lo, st.hi)
+    jacs = jax.device_get(linearize(residual, tuple(free), jnp.asarray(moved), data))[2]
+    keep = []
+    for k in ok:
+        same = True
+        for J0, J1 in zip(st.jacobians, jacs):
+            a, b = np.asarray(J0[..., k], float), np.asarray(J1[..., k], float)
+            scale = float(np.max(np.abs(a), initial=0.0))
+            if not (scale > 0 and np.all(np.isfinite(b))
+                    and np.max(np.abs(a - b)) <= AFFINE_TOL * scale):
+                same = False
+        if same:
+            keep.append(k)
+    return keep
+
+
+def softness(cov: np.ndarray | None, lo: np.ndarray, hi: np.ndarray,
+             log: np.ndarray | None = None, theta: np.ndarray | None = None) -> np.ndarray:
+    """The bounded map's softness `d` (Kf,): `SOFTNESS` x the starting standard deviation of
+    each unknown [SI] (of its logarithm, sd / theta, where `log`), within [1e-9, 1] x its box
+    width in those coordinates (the box width where undefined)."""
+    if log is not None and np.any(log):
+        lo, hi = (np.asarray(b, float) for b in log_bounds(lo, hi, log))
     w = np.where(hi > lo, hi - lo, 1.0)  # a point box (a held unknown): any softness
     if cov is None:
         return w
     with np.errstate(invalid="ignore"):
         sd = np.sqrt(np.diag(np.asarray(cov, float)))
+        if log is not None:
+            sd = np.where(log, sd / np.where(log, theta, 1.0), sd)
     ok = np.isfinite(sd) & (sd > 0)
     return np.where(ok, np.clip(SOFTNESS * np.where(ok, sd, 0.0), 1e-9 * w, w), w)
 
