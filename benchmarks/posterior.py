@@ -515,10 +515,12 @@ def render(doc: dict[str, Any]) -> str:
         g = doc["mbw_geometry"]
         out += ["## Where the modified Bouc-Wen posterior spends its leapfrog steps", "",
                 g["intro"], "",
-                _md(["target acceptance", "posterior s", "leapfrog/draw", "leapfrog/warmup step",
+                _md(["sampler", "target acceptance", "posterior s", "leapfrog/draw",
+                     "leapfrog/warmup step",
                      "step size", "gradients per device (warmup + draws)", "ms per gradient step",
                      "R-hat max", "ESS bulk / tail min", "divergences", "load"],
-                    [[r["target_accept"], r["posterior_s"], r["leapfrog_per_draw"],
+                    [[r.get("label", ""), r["target_accept"], r["posterior_s"],
+                      r["leapfrog_per_draw"],
                       r["leapfrog_per_warmup_step"], r["step_size_median"],
                       " / ".join(f"{w} + {d}" for w, d in zip(r["work_warmup"], r["work_draws"])),
                       1e3 * r["posterior_s"] / max(w + d for w, d in zip(r["work_warmup"],
@@ -531,14 +533,27 @@ def render(doc: dict[str, Any]) -> str:
             out += [f"The curvature (`python -m benchmarks.posterior_geometry`, test {h['test']}, "
                     f"{h['draws']} draws whitened by their covariance, the Hessian of -log "
                     f"density at {h['points']} of them; 1 everywhere for a Gaussian):", "",
-                    _md(["largest eigenvalue median", "90 %", "max", "its direction (draws)"],
+                    "Sampler coordinates: log for "
+                    f"{', '.join(h.get('log_coordinates', [])) or 'none'}; integrated out: "
+                    f"{', '.join(h.get('linear', [])) or 'none'}.", "",
+                    _md(["largest eigenvalue median", "90 %", "max", "smallest median",
+                         "its direction (draws)"],
                         [[h["largest_eigenvalue"]["median"], h["largest_eigenvalue"]["p90"],
                           h["largest_eigenvalue"]["max"],
+                          h.get("smallest_eigenvalue", {}).get("median", float("nan")),
                           "; ".join(f"{d} ({n})" for d, n in sorted(
                               h["directions"].items(), key=lambda t: -t[1]))]]), "",
                     _md(["", *h["skew"]],
                         [["skew", *h["skew"].values()],
                          ["excess kurtosis", *h["excess_kurtosis"].values()]]), ""]
+        if "reparametrisation" in g:
+            rp = g["reparametrisation"]
+            out += [rp["intro"], "",
+                    _md(["coordinates", "largest eigenvalue median", "90 %", "max",
+                         "smallest median", "largest along"],
+                        [[r["coordinates"], r["lmax_median"], r["lmax_p90"], r["lmax_max"],
+                          r["lmin_median"], r["top_direction"]] for r in rp["rows"]]), "",
+                    rp["note"], ""]
     if "cost" in doc:
         out += ["## One gradient against one force evaluation (test 10mm1Hz1A, warm)", "",
                 "Inside one compiled loop (no dispatch cost). The sampler uses the reverse "

@@ -333,7 +333,7 @@ def sample(
         10mm1Hz0x5A, which keeps the cheaper implicit tangent).
     - `linear`: names of unknowns the residuals are affine in, with a regressor that no
         unknown changes (a model's `fixed_params`, e.g. the force offset `f0`). Where their
-        prior is flat and the optimum lies well inside their box in every unit
+        prior is flat and the posterior's mode lies well inside their box in every unit
         (:func:`mrjax.bayes._start.collapsible`, which also checks the regressor), the
         log-density integrates them out in closed form (:func:`mrjax.bayes.linear_marginal`)
         and each draw's are drawn from their Gaussian conditional: fewer dimensions for NUTS,

@@ -187,9 +187,9 @@ def _projector(box: BOX | None, p, dtype, S: int):
     return lambda z: jnp.clip(z, lo, hi)
 
 
-def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme: str,
-              tangent: str = "exact"):
-    """The state after one sample interval: `m` steps of `scheme` (or of `flow`)."""
+def _substep(rhs, lin, proj, flow, p, x0, x1, v0, v1, h_all, m: int, scheme: str,
+             tangent: str = "exact"):
+    """`sub(j, y)`: the state after sub-step `j` of `m` of one sample interval, from `y`."""
     dx, dv = x1 - x0, v1 - v0
     h = h_all / m
     if flow is not None:
@@ -201,11 +201,15 @@ def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme:
         sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
     else:
         sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m, tangent)
+    return sub
+
+
+def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme: str,
+              tangent: str = "exact"):
+    """The state after one sample interval: `m` steps of `scheme` (or of `flow`)."""
+    sub = _substep(rhs, lin, proj, flow, p, x0, x1, v0, v1, h_all, m, scheme, tangent)
     if m == 1:
         return sub(0, y)
-    # a rolled loop: unrolled sub-steps made XLA's forward-mode code grow with m squared (one
-    # MBW Jacobian on 4,000 samples, SDIRK: 30 / 168 / 417 ms at m = 1 / 2 / 3 unrolled,
-    # 30 / 60 / 90 ms rolled; RK4 at m = 6: 49 -> 34 ms)
     return jax.lax.fori_loop(0, m, sub, y)
 
 
@@ -298,6 +302,11 @@ def integrate(
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=x.dtype), (n,))[:-1]
     xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts) + ((theta[:-1],) if per_sample else ())
     m = int(substeps)
+    # one scan step per sub-step, its interval's inputs repeated: an inner loop over the
+    # sub-steps (rolled; unrolled ones made XLA's forward-mode code grow with m squared) cost
+    # its own loop overhead per interval (modified Bouc-Wen, 2 sub-steps on a 1,001-sample
+    # view: one forward-mode Jacobian 15.7 -> 10.4 ms for 2 parameter sets, under load)
+    xs = tuple(jnp.repeat(a, m, axis=0) for a in xs) + (jnp.tile(jnp.arange(m), n - 1),)
     lin = linearize if linearize is not None else linearize_auto(rhs)
     S = y0.shape[0]
 
@@ -307,12 +316,13 @@ def integrate(
     stiff = scheme == "sdirk" and flow is None
     proj_const = projector(theta) if stiff and not per_sample else None
 
-    def interval(y, inp):
+    def step(y, inp):
         x0, x1, v0, v1, h_all = inp[:5]
         p = inp[5] if per_sample else theta
         proj = proj_const if proj_const is not None else (projector(p) if stiff else None)
-        y = _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m, scheme, tangent)
+        y = _substep(rhs, lin, proj, flow, p, x0, x1, v0, v1, h_all, m, scheme, tangent)(
+            inp[-1], y)
         return y, y
 
-    _, ys = jax.lax.scan(interval, y0, xs)
-    return jnp.concatenate([y0[None, :], ys], axis=0)
+    _, ys = jax.lax.scan(step, y0, xs)
+    return jnp.concatenate([y0[None, :], ys[m - 1::m]], axis=0)
