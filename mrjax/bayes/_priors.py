@@ -22,7 +22,7 @@ correlation with `k` (linear in `u`) bends into a banana whose curvature a dense
 cannot follow. On the 50 short tanh records of the calibration (`benchmarks/posterior.py`)
 it gave 16 divergent transitions in 200,000 draws; the soft box none.
 *Log coordinates.* A positive unknown far above its lower bound (the sampler's rule:
-`mrjax.bayes._start.LOG_AWAY` starting standard deviations) runs the same soft box in
+`mrjax.bayes._start.LOG_AWAY` standard deviations, at the start or at the mode) runs the soft box in
 $\\log\\theta$, on $[\\log l, \\log h]$ (a lower bound of 0 taken as `LOG_FLOOR` $h$), with
 $\\log\\theta$ added to the log-Jacobian. The damper models' scale parameters trade off as
 products (a damping times a hysteretic amplitude), ridges that are straight in logarithms and

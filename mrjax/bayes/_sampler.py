@@ -59,6 +59,7 @@ from ._start import (
     linear_draw,
     log_density,
     start,
+    to_log,
 )
 
 #: Chains start at the mode plus this many starting standard deviations of noise (a start
@@ -429,6 +430,9 @@ def sample(
     u_mode[:, every] = z0[:, :Km]
     centre = np.asarray(to_box(u_mode, st.lo, st.hi, st.soft, st.log))
     sd = sd_u * box_slope(u_mode, st.lo, st.hi, st.soft, st.log)
+    st, z0, cov = to_log(st, z0, cov, every, centre, sd)
+    L = np.linalg.cholesky(cov)
+    units_data = unit_arrays(every, [])
     lin = collapsible(residual, theta0, data, free, st, kind,
                       [names.index(n) for n in linear if n in names], centre, sd)
     if lin:
