@@ -606,6 +606,10 @@ def test_posterior_files_and_fit_json(tanh_post, tmp_path):
     assert set(p["conditions"][0]) >= {"label", "c", "noise_sigma", "divergences"}
     assert set(p["conditions"][0]["c"]) == {"mean", "sd", "q2.5", "q50", "q97.5", "r_hat",
                                             "ess_bulk", "ess_tail"}
+    # which parameters were integrated out of the log-density (here the offset at least)
+    assert "f0" in tp.posterior.linear
+    assert p["integrated_out"] == list(tp.posterior.linear)
+    assert idata.attrs["integrated_out"] == ", ".join(tp.posterior.linear)
 
 
 def test_figures(tanh_post):

@@ -42,16 +42,18 @@ SOFTNESS = 0.5
 #: A direction of the unknowns whose Gauss-Newton standard deviation exceeds this many box
 #: widths is undetermined by the data: one unknown along it is held (see `undetermined`).
 UNDETERMINED = 1.0
-#: An unknown with a lower bound >= 0 whose optimum lies at least this many starting standard
-#: deviations above it runs in log coordinates (`mrjax.bayes.to_box`): the damper models'
+#: An unknown with a lower bound >= 0 that lies at least this many standard deviations above
+#: it, at the start (the optimum, its Gauss-Newton sd) or at the mode (its Laplace sd: see
+#: :func:`to_log`), runs in log coordinates (`mrjax.bayes.to_box`): the damper models'
 #: scale parameters trade off as products (modified Bouc-Wen on a UTFSM view: c1, alpha and
 #: beta), a curved ridge in linear coordinates. In the posterior's whitened coordinates, the
 #: Hessian's largest eigenvalue at its draws fell from 6.2 to 4.3 (median) and its smallest
 #: rose from 0.13 to 0.21 (`benchmarks/posterior_geometry.py`). An unknown near its lower
 #: bound keeps the linear map, which near the bound is already exponential.
 LOG_AWAY = 10.0
-#: A linear unknown is integrated out of the log-density (:func:`collapsible`) where its
-#: optimum lies at least this many starting standard deviations inside its box, and where its
+#: A linear unknown is integrated out of the log-density (:func:`collapsible`) where the
+#: posterior's mode lies at least this many of its Laplace standard deviations inside its box
+#: in every unit, and where its
 #: regressor at a second point differs by at most `AFFINE_TOL` of its largest entry.
 #: Integrating out modified Bouc-Wen's f0 and k1 (AR(1) noise on a UTFSM view) removed the
 #: funnel that f0 and rho make (the innovations see f0 only through (1 - rho) f0).
