@@ -416,7 +416,8 @@ def sample(
             return Unit(data=data, lo=jnp.asarray(st.lo[:, moved]),
                         hi=jnp.asarray(st.hi[:, moved]), soft=jnp.asarray(st.soft[:, moved]),
                         log=jnp.asarray(st.log[:, moved]), theta=jnp.asarray(theta0),
-                        regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians))
+                        regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians),
+                        masks=tuple(jnp.asarray(m) for m in st.masks))
 
         units_t = arrays(every, [])
         z, m = laplace(*jax.device_get(find_mode(t, prior_data, units_t, jnp.asarray(start_z),

@@ -84,7 +84,9 @@ class Unit(NamedTuple):
     softness `soft` and `log` (bool) which of them run in log coordinates
     (`mrjax.bayes.to_box`); `theta` (K,) the optimum, which gives the held unknowns and the
     reference of the linear ones; `regressors`, per residual block (R_b, T_b, L) the
-    derivative of the residuals in the linear unknowns integrated out (constant)."""
+    derivative of the residuals in the linear unknowns integrated out (constant); `masks`,
+    per residual block, its scored samples (R_b, T_b) (None: from the residual function at
+    each evaluation; they do not depend on the unknowns)."""
 
     data: Any
     lo: Any
@@ -93,6 +95,26 @@ class Unit(NamedTuple):
     log: Any
     theta: Any
     regressors: tuple = ()
+    masks: tuple | None = None
+
+
+@eqx.filter_jit
+def _jacobian_pass(residual: Callable, theta_full, free: tuple[int, ...], tf, data):
+    """`(J, values)` of the residual blocks in the `free` unknowns `tf` (one forward-mode pass,
+    one tangent per free unknown). Jitted: a sampler's program differentiates the log-density
+    at a dozen places (the mode search, the warmup, the draws, ...), and each traced the
+    integration's forward mode again (modified Bouc-Wen: 14 traces, 7.4 s of a cold run); a
+    jitted function is traced once per shape and reused."""
+    idx = np.asarray(free, int)
+
+    def values(t):
+        return tuple(r for r, _ in residual(theta_full.at[idx].set(t), data))
+
+    # the values from the same forward pass as the Jacobian: one traced call, returned as
+    # output and aux (two calls traced two scans, and XLA kept both: modified Bouc-Wen on a
+    # UTFSM view, one gradient of the log-density 7.3 -> 5.4 ms for 2 chains)
+    J, vals = jax.jacfwd(lambda t: (values(t),) * 2, has_aux=True)(tf)
+    return J, vals
 
 
 def forward_values(residual: Callable, theta_full, free, th_free, data):
@@ -101,21 +123,17 @@ def forward_values(residual: Callable, theta_full, free, th_free, data):
     free unknown, none for the held ones) is what reverse mode transposes. Through a
     sequential integration this is cheaper than a reverse pass, which stores and replays every
     step (modified Bouc-Wen on a 1,000-sample view: 13 ms against 24 ms per gradient)."""
-
-    def values(tf):
-        return tuple(r for r, _ in residual(theta_full.at[free].set(tf), data))
+    free = tuple(int(j) for j in np.asarray(free, int))
+    idx = np.asarray(free, int)
 
     @jax.custom_jvp
     def f(tf):
-        return values(tf)
+        return tuple(r for r, _ in residual(theta_full.at[idx].set(tf), data))
 
     @f.defjvp
     def f_jvp(primals, tangents):
         (tf,), (dtf,) = primals, tangents
-        # the values from the same forward pass as the Jacobian: one traced call, returned as
-        # output and aux (two calls traced two scans, and XLA kept both: modified Bouc-Wen on
-        # a UTFSM view, one gradient of the log-density 7.3 -> 5.4 ms for 2 chains)
-        J, vals = jax.jacfwd(lambda t: (values(t),) * 2, has_aux=True)(tf)
+        J, vals = _jacobian_pass(residual, theta_full, free, tf, data)
         return vals, tuple(j @ dtf for j in J)
 
     return f(th_free)
@@ -133,10 +151,16 @@ def _likelihood(target: Target, prior, unit: Unit, z):
         log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
     th_free = to_box(u, unit.lo, unit.hi, unit.soft, unit.log)
     theta = unit.theta.at[free].set(th_free)
-    blocks = target.residual(theta, unit.data)
-    if target.forward:  # the masks above; their values (dead code there) from forward mode
-        blocks = tuple(zip(forward_values(target.residual, unit.theta, free, th_free,
-                                          unit.data), (m for _, m in blocks)))
+    if target.forward:
+        vals = forward_values(target.residual, unit.theta, free, th_free, unit.data)
+    else:
+        blocks = target.residual(theta, unit.data)
+        vals = tuple(r for r, _ in blocks)
+    masks = unit.masks
+    if masks is None:  # the masks of the blocks (the values, dead code, not traced twice)
+        masks = tuple(m for _, m in (blocks if not target.forward else target.residual(
+            jax.lax.stop_gradient(theta), unit.data)))
+    blocks = tuple(zip(vals, masks))
     lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(
         u, unit.lo, unit.hi, unit.soft, unit.log)
     if v is not None:
@@ -329,7 +353,8 @@ class Start(NamedTuple):
     and `imm` (U, D, D) the position and inverse mass matrix; the bounded map's `soft`,
     box `lo`, `hi` and `log` coordinates; `held` (U, Kf) the unknowns held; `sd` (U, Kf) the
     starting standard deviations [SI] (NaN where undefined); `jacobians`, per residual block,
-    (U, R_b, T_b, Kf) the residuals' derivatives at the optimum."""
+    (U, R_b, T_b, Kf) the residuals' derivatives at the optimum, and `masks` (U, R_b, T_b)
+    its scored samples."""
 
     z0: np.ndarray
     imm: np.ndarray
@@ -340,6 +365,7 @@ class Start(NamedTuple):
     log: np.ndarray
     sd: np.ndarray
     jacobians: tuple
+    masks: tuple
 
 
 def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()) -> Start:
@@ -404,7 +430,7 @@ def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()) -> St
         logs.append(lg)
         sds.append(sd)
     return Start(np.stack(z0), np.stack(imm), np.stack(soft), lo, hi, np.stack(held_all),
-                 np.stack(logs), np.stack(sds), tuple(jacs))
+                 np.stack(logs), np.stack(sds), tuple(jacs), tuple(masks))
 
 
 def collapsible(residual, theta0, data, free, st: Start, kind, candidates, centre,
