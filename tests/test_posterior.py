@@ -124,8 +124,8 @@ def test_an_approximate_gradient_is_checked_at_the_start(skew, switched):
     est, se, _ = ols(data)
     post = sample(SkewedLine(skew), est, data, exact=Line(), **BOX)
     assert (post.gradient_error > GRADIENT_TOL) == switched, post.gradient_error
-    if skew == 1.0:
-        assert post.gradient_error < 1e-9
+    if skew == 1.0:  # exact: equal to the central differences to their rounding
+        assert post.gradient_error < 1e-6
     th = post.theta.reshape(2, -1, 2)
     np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
     np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.2)

@@ -326,9 +326,9 @@ def sample(
         undetermined (see below), e.g. `("delta",)` for the Bouc-Wen models' z scale.
     - `exact`: where `residual`'s derivatives are an approximation (the L-stable scheme's
         implicit tangent), the same residual function with exact ones: the sampler checks
-        the approximation around the posterior's mode (:func:`mrjax.bayes._start.
-        gradient_error`) and, where the whitened gradient is off by more than
-        `GRADIENT_TOL`, searches the mode again and samples with `exact`
+        the approximation around the posterior's mode against central differences of the
+        log-density (:func:`mrjax.bayes._start.gradient_error`) and, where the whitened
+        gradient is off by more than `GRADIENT_TOL`, searches the mode again and samples with `exact`
         (`Posterior.gradient_error`; modified Bouc-Wen on UTFSM test 25mm0x1Hz1A: up to
         12,000, and its step size fell to 3e-5 with every tree at 1,023 steps; 0.007 on
         10mm1Hz0x5A, which keeps the cheaper implicit tangent).
@@ -448,8 +448,7 @@ def sample(
     target, units_data, z0, L = prepare(residual)
     grad_error = None
     if exact is not None:  # an approximate derivative, kept where it is close around the mode
-        grad_error = float(gradient_error(target, dataclasses.replace(target, residual=exact),
-                                          prior_data, units_data, jnp.asarray(z0),
+        grad_error = float(gradient_error(target, prior_data, units_data, jnp.asarray(z0),
                                           jnp.asarray(L)))
         if not grad_error <= GRADIENT_TOL:
             # all again from the start, exactly: the approximate gradient's "mode" may be far
