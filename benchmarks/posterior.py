@@ -312,8 +312,8 @@ def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, A
     for model in models:
         # the dynamic model's records are short sequential integrations: one vmapped batch
         # of all chains amortises the integrator's per-step cost (see Sampler.vectorize)
-        # (the gradient and the target acceptance: the model's defaults, Sampler.for_model)
-        sampler = Sampler(draws=draws, chains=4, warmup=draws, vectorize=model == "dahl")
+        # (the warmup, the gradient and the target acceptance: the defaults, Sampler.for_model)
+        sampler = Sampler(draws=draws, chains=4, vectorize=model == "dahl")
         for data_noise, fit_noise in (("iid", "iid"), ("ar1", "ar1"), ("ar1", "iid")):
             batch, truth = simulate_set(model, records, data_noise, seed=1)
             t0 = time.perf_counter()
@@ -340,6 +340,7 @@ def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, A
                          "ess_tail_min": d["ess_tail_min"], "divergences": d["divergences"],
                          "leapfrog_per_draw": d["leapfrog_per_draw"], "fit_s": t_fit,
                          "target_accept": post.sampler.target_accept,
+                         "warmup": post.sampler.warmup,
                          "posterior_s": t_post})
             log(f"calibration {model} {data_noise}/{fit_noise}: coverage {cov.mean():.3f} "
                 f"(Jacobian {np.mean(jcov):.3f}), R-hat {d['r_hat_max']:.4f}, "

@@ -488,6 +488,23 @@ def test_near_a_bound_truncated_normal_without_divergences():
     assert a.min() >= 0.0 and post.diagnostics()["divergences"] == 0
 
 
+def test_sampler_defaults_by_model_kind():
+    """The target acceptance is chosen by the model's kind where it is not given, a given one
+    kept; the CLI's defaults (written out: its parser imports no JAX) are the Sampler's."""
+    from mrjax.cli._parse import POSTERIOR_DEFAULTS  # noqa: SLF001
+
+    s = Sampler()
+    assert s.target_accept is None and s.gradient is None
+    dyn, stat = s.for_model(True), s.for_model(False)
+    assert (dyn.target_accept, dyn.gradient) == (0.8, "forward")
+    assert (stat.target_accept, stat.gradient) == (0.9, "reverse")
+    assert Sampler(target_accept=0.95).for_model(True).target_accept == 0.95
+    assert {k: getattr(s, k) for k in ("draws", "chains", "warmup")} == {
+        k: POSTERIOR_DEFAULTS[k] for k in ("draws", "chains", "warmup")}
+    with pytest.raises(InputError, match="target_accept must be in"):
+        Sampler(target_accept=1.0).check()
+
+
 @pytest.mark.parametrize("bad, match", [
     (dict(sampler=Sampler(draws=0)), "draws must be a positive integer"),
     (dict(sampler=Sampler(chains=-1)), "chains must be"),

@@ -69,7 +69,7 @@ from ._noise import check_noise
 from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
 from ._priors import at_bounds
 from ._result import RHO, SIGMA, Posterior, PosteriorFront, arviz
-from ._sampler import Sampler, sample
+from ._sampler import CHAINS, DRAWS, WARMUP, Sampler, sample
 
 #: How a new record's noise level is chosen (see the module notes).
 NOISE_RULE = ("relative, by motion: the root mean square over the fitted records of the same "
@@ -405,9 +405,9 @@ def law_posterior(
     gm: GeneralizedModel,
     data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
     *,
-    draws: int = 1000,
-    chains: int = 4,
-    warmup: int = 1000,
+    draws: int = DRAWS,
+    chains: int = CHAINS,
+    warmup: int = WARMUP,
     noise: str = "iid",
     prior: Mapping[str, Any] | None = None,
     key: ArrayLike | None = None,

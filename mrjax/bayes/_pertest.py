@@ -29,7 +29,7 @@ from ..objective import residuals
 from ._noise import check_noise
 from ._priors import at_bounds
 from ._result import Posterior, PosteriorFront
-from ._sampler import Sampler, sample
+from ._sampler import CHAINS, DRAWS, WARMUP, Sampler, sample
 
 if TYPE_CHECKING:  # `_laws` builds on this module
     from ._laws import LawPosterior
@@ -279,9 +279,9 @@ def posterior(
     result: FitResult | GeneralizedModel,
     data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
     *,
-    draws: int = 1000,
-    chains: int = 4,
-    warmup: int = 1000,
+    draws: int = DRAWS,
+    chains: int = CHAINS,
+    warmup: int = WARMUP,
     noise: str = "iid",
     prior: Mapping[str, Any] | None = None,
     key: ArrayLike | None = None,

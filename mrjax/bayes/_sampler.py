@@ -65,6 +65,11 @@ from ._start import (
 #: Chains start at the mode plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the mode).
 JITTER = 1.0
+#: Default draws kept per chain, chains per unit and warmup steps per chain (see `Sampler`).
+DRAWS, CHAINS, WARMUP = 1000, 4, 500
+#: Default target acceptance rate of the step-size adaptation, by the model's kind (see
+#: `Sampler.target_accept`).
+TARGET_ACCEPT = {"static": 0.9, "dynamic": 0.8}
 #: Draws whose linear unknowns (integrated out of the log-density) are drawn side by side.
 LINEAR_BATCH = 64
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
@@ -80,15 +85,20 @@ class Sampler(eqx.Module):
     - `draws`: draws kept per chain (after warmup).
     - `chains`: independent chains per unit.
     - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
-    - `target_accept`: the step-size adaptation's target acceptance rate. 0.9 (Stan: 0.8):
+        `WARMUP` = 500 (Stan: 1,000, for chains started anywhere): the chains start at the
+        posterior's mode with the inverse of its Hessian as mass matrix, and the adaptation
+        has little left to find. Modified Bouc-Wen (UTFSM 10mm1Hz0x5A, AR(1)): 500 against
+        1,000 steps, 115.7 against 157.7 s, bulk / tail ESS 2,180 / 1,058 against
+        2,867 / 1,238; the calibration sets: `benchmarks/posterior.md`.
+    - `target_accept`: the step-size adaptation's target acceptance rate; None (default):
+        `TARGET_ACCEPT` by the model (:meth:`for_model`). A static model 0.9 (Stan: 0.8):
         the tanh model on short records (2 cycles, 4 mm) has correlated posteriors (c, k,
         alpha, beta to 0.9); on the 50 such records of the calibration, through the soft box
         (`mrjax.bayes.to_box`), 0.8 gave 1 divergent transition in 200,000 draws, 0.9 none,
-        for 6.7 leapfrog steps per draw. With a dynamic model 0.8 takes fewer gradients for
-        as many fewer effective draws: modified Bouc-Wen (UTFSM 10mm1Hz0x5A, AR(1)) 34 %
-        fewer gradients, bulk ESS 1,215 against 1,592; the Dahl AR(1) calibration set 16 %
-        fewer, ESS bulk / tail 568 / 226 against 735 / 376 and R-hat 1.013 against 1.006
-        (`benchmarks/posterior.md`).
+        for 6.7 leapfrog steps per draw. A dynamic model 0.8: in log coordinates with its
+        linear parameters integrated out, modified Bouc-Wen (UTFSM 10mm1Hz0x5A, AR(1), 1,000
+        warmup steps) took 25.4k gradients per device against 32.1k at 0.9, for a bulk / tail
+        ESS of 2,867 / 1,238 against 2,179 / 1,183.
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
@@ -112,22 +122,25 @@ class Sampler(eqx.Module):
         reverse mode.
     """
 
-    draws: int = eqx.field(static=True, default=1000)
-    chains: int = eqx.field(static=True, default=4)
-    warmup: int = eqx.field(static=True, default=1000)
-    target_accept: float = eqx.field(static=True, default=0.9)
+    draws: int = eqx.field(static=True, default=DRAWS)
+    chains: int = eqx.field(static=True, default=CHAINS)
+    warmup: int = eqx.field(static=True, default=WARMUP)
+    target_accept: float | None = eqx.field(static=True, default=None)
     max_doublings: int = eqx.field(static=True, default=10)
     dense_mass: bool = eqx.field(static=True, default=True)
     vectorize: bool | str | None = eqx.field(static=True, default=None)
     gradient: str | None = eqx.field(static=True, default=None)
 
     def for_model(self, dynamic: bool) -> Sampler:
-        """Self with `gradient` chosen where it is None: `"forward"` for a dynamic model (one
-        sequential integration: modified Bouc-Wen on a UTFSM view, 13 ms forward against 24 ms
-        reverse per gradient), `"reverse"` for a static one."""
-        if self.gradient is not None:
-            return self
-        return dataclasses.replace(self, gradient="forward" if dynamic else "reverse")
+        """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
+        for a dynamic model (one sequential integration: modified Bouc-Wen on a UTFSM view,
+        13 ms forward against 24 ms reverse per gradient), `"reverse"` for a static one; the
+        target acceptance `TARGET_ACCEPT` of the model's kind."""
+        kind = "dynamic" if dynamic else "static"
+        return dataclasses.replace(
+            self, gradient=self.gradient or ("forward" if dynamic else "reverse"),
+            target_accept=TARGET_ACCEPT[kind] if self.target_accept is None
+            else self.target_accept)
 
     def check(self) -> Sampler:
         """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
@@ -136,7 +149,7 @@ class Sampler(eqx.Module):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
-        if not 0.0 < float(self.target_accept) < 1.0:
+        if self.target_accept is not None and not 0.0 < float(self.target_accept) < 1.0:
             raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
         if self.vectorize not in (None, True, False, *VECTORIZE):
             raise InputError(f"vectorize must be None, True, False or one of "

@@ -304,8 +304,8 @@ def add_data_options(parser: argparse.ArgumentParser) -> None:
 
 
 #: The posterior options of `mrjax fit --posterior` and their defaults (None in argparse: given
-#: or not is checked).
-POSTERIOR_DEFAULTS = {"draws": 1000, "chains": 4, "warmup": 1000, "noise": "iid"}
+#: or not is checked), those of `mrjax.bayes.Sampler` (written out: the parser imports no JAX).
+POSTERIOR_DEFAULTS = {"draws": 1000, "chains": 4, "warmup": 500, "noise": "iid"}
 
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
