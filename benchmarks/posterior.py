@@ -68,10 +68,11 @@ def utfsm() -> Path:
     return Path(d)
 
 
-def mbw_tests(draws: int, jobs: int, limit_s: float = 900.0) -> list[dict[str, Any]]:
+def mbw_tests(draws: int, warmup: int | None, jobs: int,
+              limit_s: float = 900.0) -> list[dict[str, Any]]:
     """The modified Bouc-Wen posterior of each UTFSM test in its own cold process (AR(1), the
-    view, 4 chains x (`draws` warmup + `draws`)), `jobs` processes at a time; a test not done
-    within `limit_s` is reported without a row."""
+    view, 4 chains x (`warmup` + `draws`), `warmup` None: the default), `jobs` processes at a
+    time, one CPU device each; a test not done within `limit_s` is reported without a row."""
     res, _, _ = cached_fit("modified_bouc_wen")
     todo, running, rows = list(res.labels), [], []
     env = dict(os.environ, MRJAX_CACHE_DIR="off", JAX_PLATFORMS="cpu")
@@ -80,7 +81,7 @@ def mbw_tests(draws: int, jobs: int, limit_s: float = 900.0) -> list[dict[str, A
             lab = todo.pop(0)
             argv = [sys.executable, "-m", "benchmarks.posterior", "case", "--model",
                     "modified_bouc_wen", "--tests", lab, "--noise", "ar1", "--draws",
-                    str(draws), "--warmup", str(draws)]
+                    str(draws)] + ([] if warmup is None else ["--warmup", str(warmup)])
             p = subprocess.Popen(argv, cwd=HERE.parent, env=env, stdout=subprocess.PIPE,
                                  stderr=subprocess.DEVNULL, text=True)
             running.append((lab, p, time.perf_counter(), os.getloadavg()[0]))
@@ -132,13 +133,16 @@ def run_case(a: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        tp = mrjax.posterior(res, batch, draws=a.draws, chains=a.chains, warmup=a.warmup,
+        tp = mrjax.posterior(res, batch, draws=a.draws, chains=a.chains,
+                             warmup=a.warmup or mrjax.bayes.Sampler().warmup,
                              noise=a.noise, likelihood_data=a.data, seed=0)
     wall = time.perf_counter() - t0
     post = tp.posterior
     iv = {n: post.interval(n).tolist() for n in post.names}
     return {"model": a.model, "tests": a.tests, "n_tests": len(post.labels), "noise": a.noise,
-            "data": tp.data, "draws": a.draws, "chains": a.chains, "warmup": a.warmup,
+            "data": tp.data, "draws": a.draws, "chains": a.chains,
+            "warmup": tp.posterior.sampler.warmup,
+            "target_accept": tp.posterior.sampler.target_accept,
             "import_s": t_import, "fit_s": t_fit, "posterior_s": wall,
             "process_s": time.perf_counter() - t_start, "diagnostics": post.diagnostics(),
             "scored_samples": [int(n) for n in tp.n_scored], "labels": list(post.labels),
@@ -620,7 +624,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", type=int, default=50)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--chains", type=int, default=4)
-    ap.add_argument("--warmup", type=int, default=1000)
+    ap.add_argument("--warmup", type=int, default=None, help="default: the Sampler's")
     ap.add_argument("--model", default="kwok")
     ap.add_argument("--tests", default="all")
     ap.add_argument("--noise", default="iid")
@@ -642,7 +646,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.what == "calibration":
         calibration(a.records, a.draws, a.models.split(","))
     elif a.what == "mbw-tests":
-        merge("mbw_tests", mbw_tests(a.draws, a.jobs))
+        merge("mbw_tests", mbw_tests(a.draws, a.warmup, a.jobs))
     elif a.what == "cost":
         merge("cost", gradient_cost())
     elif a.what == "speed":
