@@ -256,8 +256,8 @@ def gradient_cost() -> list[dict[str, Any]]:
         vg = jax.value_and_grad(lambda th: ll(r_fn(th)))
         rev = lambda th: (lambda v, g: v + jnp.sum(g))(*vg(th))
 
-        def fwd(th):  # the sampler's forward mode: the Jacobian, then its transpose
-            r, J = r_fn(th), jax.jacfwd(r_fn)(th)
+        def fwd(th):  # the sampler's forward mode: values and Jacobian in one pass, transposed
+            J, r = jax.jacfwd(lambda t: (r_fn(t),) * 2, has_aux=True)(th)
             v, g = jax.value_and_grad(ll)(r)
             return v + jnp.sum(jnp.tensordot(g, J, axes=2))
 

@@ -133,9 +133,9 @@ class Sampler(eqx.Module):
 
     def for_model(self, dynamic: bool) -> Sampler:
         """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
-        for a dynamic model (one sequential integration: modified Bouc-Wen on a UTFSM view,
-        13 ms forward against 24 ms reverse per gradient), `"reverse"` for a static one; the
-        target acceptance `TARGET_ACCEPT` of the model's kind."""
+        for a dynamic model (one sequential integration: modified Bouc-Wen on a UTFSM view, one
+        gradient costs 1.9 log-density evaluations forward and 5.9 reverse), `"reverse"` for
+        a static one; the target acceptance `TARGET_ACCEPT` of the model's kind."""
         kind = "dynamic" if dynamic else "static"
         return dataclasses.replace(
             self, gradient=self.gradient or ("forward" if dynamic else "reverse"),

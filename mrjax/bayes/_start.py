@@ -122,7 +122,8 @@ def forward_values(residual: Callable, theta_full, free, th_free, data):
     differentiated in forward mode in `th_free`: their Jacobian (one pass with one tangent per
     free unknown, none for the held ones) is what reverse mode transposes. Through a
     sequential integration this is cheaper than a reverse pass, which stores and replays every
-    step (modified Bouc-Wen on a 1,000-sample view: 13 ms against 24 ms per gradient)."""
+    step (modified Bouc-Wen on a 1,001-sample view: one gradient costs 1.9 evaluations of the
+    log-density this way, 5.9 in reverse mode)."""
     free = tuple(int(j) for j in np.asarray(free, int))
     idx = np.asarray(free, int)
 
