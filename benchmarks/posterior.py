@@ -423,14 +423,14 @@ def render(doc: dict[str, Any]) -> str:
         out += ["## Calibration (known answer)", "",
                 f"{rows[0]['records']} simulated records per set, about "
                 f"{rows[0]['samples_per_record']} samples each, noise 2 % of max|F|; "
-                "4 chains x 1000 draws. Coverage: share of (record, parameter) pairs whose 95 % "
-                "interval holds the truth (nominal 0.95; the Jacobian intervals of the fit "
-                "beside it).", "",
-                _md(["model", "noise in data", "likelihood", "target acceptance", "coverage",
-                     "Jacobian coverage", "R-hat max", "ESS bulk min", "ESS tail min",
-                     "divergences", "leapfrog/draw", "posterior s"],
-                    [[r["model"], r["data_noise"], r["likelihood"], r.get("target_accept", 0.9),
-                      r["coverage"], r["jacobian_coverage"], f"{r['r_hat_max']:.4f}",
+                "4 chains x 1000 draws after the warmup steps shown. Coverage: share of "
+                "(record, parameter) pairs whose 95 % interval holds the truth (nominal 0.95; "
+                "the Jacobian intervals of the fit beside it).", "",
+                _md(["model", "noise in data", "likelihood", "warmup", "target acceptance",
+                     "coverage", "Jacobian coverage", "R-hat max", "ESS bulk min",
+                     "ESS tail min", "divergences", "leapfrog/draw", "posterior s"],
+                    [[r["model"], r["data_noise"], r["likelihood"], r.get("warmup", 1000),
+                      r.get("target_accept", 0.9), r["coverage"], r["jacobian_coverage"], f"{r['r_hat_max']:.4f}",
                       r["ess_bulk_min"], r["ess_tail_min"], r["divergences"],
                       r["leapfrog_per_draw"], r["posterior_s"]] for r in rows]), ""]
         out += [f"- {r['model']} {r['data_noise']} / {r['likelihood']}: {r['note']}"
