@@ -430,8 +430,8 @@ def render(doc: dict[str, Any]) -> str:
                      "coverage", "Jacobian coverage", "R-hat max", "ESS bulk min",
                      "ESS tail min", "divergences", "leapfrog/draw", "posterior s"],
                     [[r["model"], r["data_noise"], r["likelihood"], r.get("warmup", 1000),
-                      r.get("target_accept", 0.9), r["coverage"], r["jacobian_coverage"], f"{r['r_hat_max']:.4f}",
-                      r["ess_bulk_min"], r["ess_tail_min"], r["divergences"],
+                      r.get("target_accept", 0.9), r["coverage"], r["jacobian_coverage"],
+                      f"{r['r_hat_max']:.4f}", r["ess_bulk_min"], r["ess_tail_min"], r["divergences"],
                       r["leapfrog_per_draw"], r["posterior_s"]] for r in rows]), ""]
         out += [f"- {r['model']} {r['data_noise']} / {r['likelihood']}: {r['note']}"
                 for r in rows if r.get("note")]

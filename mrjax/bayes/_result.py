@@ -157,9 +157,10 @@ class Posterior:
             coords["record"] = list(self.row_labels or map(str, range(R)))
         attrs = {"noise": self.noise, "seed": self.seed, "sampler": "blackjax NUTS",
                  "warmup": int(self.sampler.warmup), "dense_mass": int(self.sampler.dense_mass),
-                 "target_accept": float(self.sampler.target_accept),
                  "integrated_out": ", ".join(self.linear) or "none",
                  "prior": "; ".join(f"{k}: {v}" for k, v in self.prior.items()) or "flat on box"}
+        if self.sampler.target_accept is not None:  # None: a Posterior built by hand
+            attrs["target_accept"] = float(self.sampler.target_accept)
         if self.param_units is not None:
             attrs["units"] = ", ".join(f"{n} [{un}]" for n, un in zip(self.names,
                                                                       self.param_units))
@@ -332,7 +333,7 @@ class Posterior:
         s = self.sampler
         doc = {"sampler": "blackjax NUTS", "noise": self.noise, "draws": int(s.draws),
                "chains": int(s.chains), "warmup": int(s.warmup), "dense_mass": bool(s.dense_mass),
-               "target_accept": float(s.target_accept),
+               "target_accept": None if s.target_accept is None else float(s.target_accept),
                "integrated_out": list(self.linear),
                "seed": self.seed, "prior": self.prior or "flat on the bounds",
                "diagnostics": self.diagnostics(), "warnings": self.problems(),
