@@ -489,16 +489,16 @@ def render(doc: dict[str, Any]) -> str:
                 f"One fresh process per test, two at a time on the 2 cores, "
                 f"{n.get('chains')} chains x ({n.get('warmup')} + {n.get('draws')}) steps, "
                 f"AR(1) noise, the swarm's view, the start at the posterior's mode; "
-                f"`at 4 x (1000 + 1000)`: extrapolated linearly (an upper bound: a longer "
-                f"warmup adapts a better metric). Posterior s over the {len(rows)} tests: "
-                f"median {np.median(t):.0f}, max {t.max():.0f}, total {t.sum():.0f}."
-                if rows else "", "",
-                _md(["test", "CPU devices", "posterior s", "at 4 x (1000 + 1000) s",
+                f"`at the defaults`: 4 x (500 + 1000), extrapolated linearly from a shorter "
+                f"run (compilation included: an upper bound). Posterior s over the "
+                f"{len(rows)} tests: median {np.median(t):.0f}, max {t.max():.0f}, total "
+                f"{t.sum():.0f}." if rows else "", "",
+                _md(["test", "CPU devices", "posterior s", "at the defaults s",
                      "leapfrog/draw",
                      "step size", "R-hat max", "ESS bulk min", "ESS tail min", "divergences",
                      "held", "load before / after"],
                     [[r["label"], r.get("devices", 1), r["row"]["posterior_s"],
-                      r["row"]["posterior_s"] * 2000 * 4 / (
+                      r["row"]["posterior_s"] * 1500 * 4 / (
                           r["row"]["chains"] * (r["row"]["warmup"] + r["row"]["draws"])),
                       r["row"]["diagnostics"]["leapfrog_per_draw"],
                       r["row"]["diagnostics"]["step_size_median"],
