@@ -220,7 +220,8 @@ def test_start_is_the_posterior_mode_with_its_hessian():
         assert not st.log.any()  # boxes reaching below 0: linear coordinates
         target = core.Target(residual=Line(), free=(0, 1), rows=(1,), noise="iid")
         units = core.Unit(unit, jnp.asarray(lo_f), jnp.asarray(hi_f), jnp.asarray(soft),
-                          jnp.asarray(st.log), jnp.asarray(est[i:i + 1]))
+                          jnp.asarray(st.log), jnp.asarray(est[i:i + 1]),
+                          tuple(map(jnp.asarray, st.masks)))
         L = np.linalg.cholesky(imm)
         found = jax.device_get(core.find_mode(target, tuple(map(jnp.asarray, (kind, a, b))),
                                           units, jnp.asarray(z0), jnp.asarray(L)))

@@ -85,8 +85,8 @@ class Unit(NamedTuple):
     (`mrjax.bayes.to_box`); `theta` (K,) the optimum, which gives the held unknowns and the
     reference of the linear ones; `regressors`, per residual block (R_b, T_b, L) the
     derivative of the residuals in the linear unknowns integrated out (constant); `masks`,
-    per residual block, its scored samples (R_b, T_b) (None: from the residual function at
-    each evaluation; they do not depend on the unknowns)."""
+    per residual block, its scored samples (R_b, T_b) (they do not depend on the unknowns:
+    read once, at the start)."""
 
     data: Any
     lo: Any
@@ -94,8 +94,13 @@ class Unit(NamedTuple):
     soft: Any
     log: Any
     theta: Any
+    masks: tuple
     regressors: tuple = ()
-    masks: tuple | None = None
+
+
+def _values(residual: Callable, theta_full, idx: np.ndarray, tf, data) -> tuple:
+    """The residual blocks' values at `theta_full` with its entries `idx` set to `tf`."""
+    return tuple(r for r, _ in residual(theta_full.at[idx].set(tf), data))
 
 
 @eqx.filter_jit
@@ -106,14 +111,11 @@ def _jacobian_pass(residual: Callable, theta_full, free: tuple[int, ...], tf, da
     integration's forward mode again (modified Bouc-Wen: 14 traces, 7.4 s of a cold run); a
     jitted function is traced once per shape and reused."""
     idx = np.asarray(free, int)
-
-    def values(t):
-        return tuple(r for r, _ in residual(theta_full.at[idx].set(t), data))
-
     # the values from the same forward pass as the Jacobian: one traced call, returned as
     # output and aux (two calls traced two scans, and XLA kept both: modified Bouc-Wen on a
     # UTFSM view, one gradient of the log-density 7.3 -> 5.4 ms for 2 chains)
-    J, vals = jax.jacfwd(lambda t: (values(t),) * 2, has_aux=True)(tf)
+    J, vals = jax.jacfwd(lambda t: (_values(residual, theta_full, idx, t, data),) * 2,
+                         has_aux=True)(tf)
     return J, vals
 
 
@@ -125,11 +127,10 @@ def forward_values(residual: Callable, theta_full, free, th_free, data):
     step (modified Bouc-Wen on a 1,001-sample view: one gradient costs 1.9 evaluations of the
     log-density this way, 5.9 in reverse mode)."""
     free = tuple(int(j) for j in np.asarray(free, int))
-    idx = np.asarray(free, int)
 
     @jax.custom_jvp
     def f(tf):
-        return tuple(r for r, _ in residual(theta_full.at[idx].set(tf), data))
+        return _values(residual, theta_full, np.asarray(free, int), tf, data)
 
     @f.defjvp
     def f_jvp(primals, tangents):
@@ -151,17 +152,11 @@ def _likelihood(target: Target, prior, unit: Unit, z):
     if v is not None:  # the position holds the innovations' level: the marginal one from it
         log_sigma = log_sigma - 0.5 * log1m_tanh2(v)
     th_free = to_box(u, unit.lo, unit.hi, unit.soft, unit.log)
-    theta = unit.theta.at[free].set(th_free)
     if target.forward:
         vals = forward_values(target.residual, unit.theta, free, th_free, unit.data)
     else:
-        blocks = target.residual(theta, unit.data)
-        vals = tuple(r for r, _ in blocks)
-    masks = unit.masks
-    if masks is None:  # the masks of the blocks (the values, dead code, not traced twice)
-        masks = tuple(m for _, m in (blocks if not target.forward else target.residual(
-            jax.lax.stop_gradient(theta), unit.data)))
-    blocks = tuple(zip(vals, masks))
+        vals = _values(target.residual, unit.theta, free, th_free, unit.data)
+    blocks = tuple(zip(vals, unit.masks))
     lp = log_prior(th_free, kind[free], a[free], b[free]) + log_jacobian(
         u, unit.lo, unit.hi, unit.soft, unit.log)
     if v is not None:
@@ -296,8 +291,8 @@ def find_mode(target, prior, units, z0, L):
             return (k + 1, w, f, g, H, f0, lam, w + V @ (gv / (e + lam)), dec)
 
         w0 = jnp.zeros_like(z)
-        nan = jnp.asarray(-jnp.inf, z.dtype)
-        init = (jnp.zeros((), jnp.int32), w0, nan, w0, jnp.zeros((D, D), z.dtype), nan,
+        neg_inf = jnp.asarray(-jnp.inf, z.dtype)
+        init = (jnp.zeros((), jnp.int32), w0, neg_inf, w0, jnp.zeros((D, D), z.dtype), neg_inf,
                 jnp.asarray(1e-3, z.dtype), w0, jnp.asarray(jnp.inf, z.dtype))
         _, w, f, _, H, f0, _, w_next, dec = jax.lax.while_loop(cond, body, init)
         return jnp.where(dec <= MODE_TOL, w_next, w), f, f0, H
@@ -329,9 +324,8 @@ def linearize(residual, free: tuple[int, ...], theta0, data):
     idx = np.asarray(free, int)
 
     def one(th, d):
-        f = lambda tf: tuple(r for r, _ in residual(th.at[idx].set(tf), d))
-        masks = tuple(m for _, m in residual(th, d))
-        return f(th[idx]), masks, jax.jacfwd(f)(th[idx])
+        J, vals = _jacobian_pass(residual, th, tuple(free), th[idx], d)
+        return vals, tuple(m for _, m in residual(th, d)), J
 
     return jax.vmap(one)(theta0, data)
 
