@@ -27,6 +27,16 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 
 
+def default_data_dir() -> Path | None:
+    """The UTFSM tests: `$MRJAX_DATA` if set (used as given, so that a wrong setting fails when
+    loaded), else the first `shared/data/utfsm` found in the working directory's parent or in a
+    parent of this checkout, else None."""
+    if os.environ.get("MRJAX_DATA"):
+        return Path(os.environ["MRJAX_DATA"]).expanduser()
+    found = [p / "shared" / "data" / "utfsm" for p in (Path.cwd().parent, REPO, *REPO.parents)]
+    return next((d.resolve() for d in found if d.is_dir()), None)
+
+
 def log(msg: str) -> None:
     """Progress on stderr with the time of day."""
     print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)

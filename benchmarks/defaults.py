@@ -100,7 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None)
     ap.add_argument("--resume", action="store_true", help="skip the runs defaults.json holds")
     args = ap.parse_args(argv)
-    from mrjax.data import default_data_dir
+    from ._common import default_data_dir
 
     data = Path(args.data) if args.data else default_data_dir()
     out = json.loads(JSON.read_text()) if (args.resume and JSON.exists()) else {}

@@ -37,7 +37,9 @@ def fit_one(name: str, restarts: int, polish_steps: int, data: str | None, warm:
     """Fit `name` on all tests in this process; the per-test figures and the timings."""
     t0 = time.perf_counter()
     import mrjax
-    from mrjax.data import default_data_dir, load, make_batch
+    from mrjax.data import load, make_batch
+
+    from ._common import default_data_dir
 
     d = Path(data) if data else default_data_dir()
     batch = make_batch(load(d))

@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from ._common import HERE, environment, log
+from ._common import HERE, default_data_dir, environment, log
 
 DEFAULT_TESTS = ("2mm5Hz0x5A", "10mm1Hz0x5A", "25mm0x5Hz0x5A")
 
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     from scipy.optimize import least_squares
 
     import mrjax
-    from mrjax.data import default_data_dir, load, make_batch
+    from mrjax.data import load, make_batch
     from mrjax.refine import polish
 
     d = args.data or default_data_dir()

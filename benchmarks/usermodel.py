@@ -37,7 +37,9 @@ def fit_one(spec: str, data: str | None) -> dict:
     """Cold then warm fit of `spec` on every UTFSM test in this process."""
     t0 = time.perf_counter()
     import mrjax
-    from mrjax.data import default_data_dir, load, make_batch
+    from mrjax.data import load, make_batch
+
+    from ._common import default_data_dir
 
     batch = make_batch(load(Path(data) if data else default_data_dir()))
     model = mrjax.models.get(spec)
@@ -62,7 +64,9 @@ def micro(data: str | None, repeats: int = 20) -> dict:
     import jax.numpy as jnp
 
     import mrjax
-    from mrjax.data import default_data_dir, load
+    from mrjax.data import load
+
+    from ._common import default_data_dir
 
     cond = load(Path(data) if data else default_data_dir())[0]
     x, v = jnp.asarray(cond.x[:4000]), jnp.asarray(cond.xdot[:4000])

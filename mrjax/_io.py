@@ -275,24 +275,33 @@ class OutputDir:
                 break
 
 
-def json_safe(obj):
-    """Plain JSON values: NumPy scalars and arrays to Python, NaN and inf to `None` (JSON has
-    no NaN), tuples to lists, mapping keys to `str`. The one NaN -> null rule of every mrjax
-    JSON file."""
+def _plain(obj, array, nonfinite):
+    """`obj` as plain JSON values: mapping keys to `str`, tuples and lists to lists, NumPy
+    scalars to Python; a NumPy array through `array(a)`, a non-finite float through
+    `nonfinite(v)`."""
     import numpy as np
 
     if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [json_safe(v) for v in obj]
+        return {str(k): _plain(v, array, nonfinite) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v, array, nonfinite) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return array(obj)
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
         return int(obj)
     if isinstance(obj, (float, np.floating)):
         v = float(obj)
-        return v if math.isfinite(v) else None
+        return v if math.isfinite(v) else nonfinite(v)
     return obj
+
+
+def json_safe(obj):
+    """Plain JSON values: NumPy scalars and arrays to Python, NaN and inf to `None` (JSON has
+    no NaN), tuples to lists, mapping keys to `str`. The one NaN -> null rule of every mrjax
+    JSON file."""
+    return _plain(obj, lambda a: [json_safe(v) for v in a], lambda v: None)
 
 
 def _dumps(o, indent: int = 0) -> str:
@@ -327,27 +336,17 @@ def exact_encode(obj):
     arrays as `{"__ndarray__": dtype, "shape": [...], "data": [flat values]}`, floats by `repr`
     (the shortest text that reads back to the same float), a non-finite float as
     `{"__float__": "nan"|"inf"|"-inf"}` (in a float array: the bare string); tuples become
-    lists. For state that must round-trip bit for bit
-    (the journal of a chunked fit); reports use :func:`json_safe` (NaN -> null)."""
-    import numpy as np
+    lists. For state that must round-trip bit for bit (the journal of a chunked fit); reports
+    use :func:`json_safe` (NaN -> null)."""
+    return _plain(obj, _array_record, lambda v: {_FLOAT: repr(v)})
 
-    if isinstance(obj, dict):
-        return {str(k): exact_encode(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [exact_encode(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        flat = obj.ravel().tolist()
-        if obj.dtype.kind == "f":
-            flat = [v if math.isfinite(v) else repr(v) for v in flat]
-        return {_ARRAY: obj.dtype.str, "shape": list(obj.shape), "data": flat}
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else {_FLOAT: repr(v)}
-    return obj
+
+def _array_record(a) -> dict:
+    """A NumPy array as :func:`exact_encode` writes it."""
+    flat = a.ravel().tolist()
+    if a.dtype.kind == "f":
+        flat = [v if math.isfinite(v) else repr(v) for v in flat]
+    return {_ARRAY: a.dtype.str, "shape": list(a.shape), "data": flat}
 
 
 def exact_decode(obj):

@@ -3,11 +3,10 @@ operating system's limit on memory maps.
 
 XLA:CPU places the machine code of every compiled program in memory maps of its own, and JAX
 keeps every program of a process in its caches: each fit of a new model, shape or setting adds
-a few hundred maps (measured: about 370 per tanh fit). Linux refuses new maps beyond
-`vm.max_map_count` (65,530 by default), and the next compilation then crashes the process
-(a segmentation fault inside LLVM). :func:`release_code` empties JAX's caches when the
-process holds more than `MAP_SHARE` of that limit; the programs are compiled again when they
-are next used.
+a few hundred maps. Linux refuses new maps beyond `vm.max_map_count` (65,530 by default), and
+the next compilation then crashes the process (a segmentation fault inside LLVM).
+:func:`release_code` empties JAX's caches when the process holds more than `MAP_SHARE` of that
+limit; the programs are compiled again when they are next used.
 """
 
 from __future__ import annotations

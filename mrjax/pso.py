@@ -32,12 +32,11 @@ leaves open where $\lambda^{-1}$ and the mean are taken. mrjax's reading:
   which that mean is at most $\gamma_t = -\ln(c)\,\hat\lambda^{-1}_t$.
 
 Why the running estimate rather than "the mean over the first W generations": the first
-generations are the least exponential (one lucky initial particle can make them), and with a
-first-W estimate the stop lands at exactly 2W on almost every condition of the paper grid
-(measured), i.e. a fixed budget in disguise. The running estimate uses every improvement seen,
-needs no separate burn-in, and gives the paper's behaviour: the full tanh swarm stops after
-about 15 generations (median) with the default W = 8. `max_generations` caps every condition;
-`criterion=False` runs exactly `max_generations` (for benchmarks).
+generations are the least exponential (one lucky initial particle can make them), so a first-W
+estimate overstates $\lambda^{-1}$ and stops nearly every condition as soon as it may, at 2W: a
+fixed budget in disguise. The running estimate uses every improvement seen and needs no
+separate burn-in. `max_generations` caps every condition; `criterion=False` runs exactly
+`max_generations` (for benchmarks).
 
 **Separable mode.** Every model declares which parameters enter the force linearly. In
 `"separable"` mode (variable projection, Golub & Pereyra 1973) the swarm searches only the
@@ -93,8 +92,7 @@ class PSOParams(eqx.Module):
     - `c1_max`: bound of the group-best coefficient $c_1 \\sim U[0, c_{1,max}]$ (default 2).
     - `c2_max`: bound of the personal-best coefficient $c_2$ (default 2).
     - `confidence`: confidence of the statistical stop (default 0.905, the paper's).
-    - `window`: generations W over which recent improvements are averaged (default 8, which
-        with the paper's settings stops the tanh model's full swarm after about 15 generations;
+    - `window`: generations W over which recent improvements are averaged (default 8;
         `default_params("separable")` uses 25, see there; at most `MAX_WINDOW`).
     - `min_generations`: never stop before this many generations (default 0; the window
         already requires W).
@@ -141,8 +139,8 @@ class PSOParams(eqx.Module):
 def default_params(mode: str = "full") -> PSOParams:
     """Default hyperparameters per swarm mode: the paper's for `"full"` (window 8), and
     window 25 for `"separable"`, whose two- to four-dimensional search keeps finding small
-    improvements for longer; with it every paper-grid condition stops within 1.005 x the RMS
-    of the true parameters (median stop after about 28 generations)."""
+    improvements for longer: a shorter window would stop it before it reaches the optimum's
+    basin floor."""
     return PSOParams(window=25) if mode == "separable" else PSOParams()
 
 
@@ -185,6 +183,17 @@ class AbstractObjective(eqx.Module):
     def to_params(self, position: Array, data: Any) -> Array:
         """Full parameter vector for a swarm position (identity by default)."""
         return position
+
+
+class SwarmProblem(eqx.Module):
+    """What C swarms minimise, one per condition: `objective` (an :class:`AbstractObjective`),
+    the search box `lower`, `upper` (C, D) in the units of the positions, and `data` (a pytree
+    whose leaves have a leading condition axis C)."""
+
+    objective: AbstractObjective
+    lower: Float[Array, "C D"]
+    upper: Float[Array, "C D"]
+    data: Any
 
 
 # ------------------------------------------------------------------------------ swarm
@@ -277,32 +286,23 @@ def _evaluate_paged(objective: AbstractObjective, position: Array, data: Any, ac
     return jax.lax.fori_loop(0, n_pages, one_page, f0)
 
 
-def init(
-    objective: AbstractObjective,
-    lower: Float[Array, "C D"],
-    upper: Float[Array, "C D"],
-    data: Any,
-    keys: Any,
-    *,
-    n_particles: int,
-    max_generations: int,
-) -> SwarmState:
+def init(problem: SwarmProblem, keys: Any, *, n_particles: int,
+         max_generations: int) -> SwarmState:
     """The initial state of C swarms: N particles uniform in each condition's box, zero
     velocity, evaluated once (generation 0).
 
-    **Arguments:** `objective`, `lower`, `upper` (C, D), `data` (leading axis C) as for
-    :func:`swarm`; `keys` (C,) one PRNG key per condition; `n_particles` N and
+    **Arguments:** `problem`; `keys` (C,) one PRNG key per condition; `n_particles` N and
     `max_generations` G (static: the history has G + 1 entries). Pure and jittable.
     """
-    C, D = lower.shape
+    C, D = problem.lower.shape
     N, G = n_particles, max_generations
 
     def init_one(k, lo, hi):
         u = jax.random.uniform(jax.random.fold_in(k, 0), (N, D), dtype=lo.dtype)
         return lo + u * (hi - lo)
 
-    pos = jax.vmap(init_one)(keys, lower, upper)
-    fit = _evaluate(objective, pos, data)
+    pos = jax.vmap(init_one)(keys, problem.lower, problem.upper)
+    fit = _evaluate(problem.objective, pos, problem.data)
     g = jnp.argmin(fit, axis=1)
     gpos = jnp.take_along_axis(pos, g[:, None, None], axis=1)[:, 0]
     gfit = jnp.min(fit, axis=1)
@@ -316,9 +316,8 @@ def init(
     )
 
 
-def ask(
-    state: SwarmState, lower: Float[Array, "C D"], upper: Float[Array, "C D"], params: PSOParams
-) -> tuple[Float[Array, "C N D"], Float[Array, "C N D"]]:
+def ask(state: SwarmState, problem: SwarmProblem, params: PSOParams
+        ) -> tuple[Float[Array, "C N D"], Float[Array, "C N D"]]:
     """The next positions and velocities (eq 9-10, absorbing walls), `(x, v)` each (C, N, D).
 
     $c_1, c_2$ are drawn per condition, particle and dimension from the condition's key and
@@ -330,14 +329,15 @@ def ask(
 
     def draws(k, t):
         # r1 and r2 are the two 16-bit halves of one random 32-bit word: half the threefry
-        # hashes of two separate draws (the draws cost ~25 % of a float32 tanh generation
-        # otherwise), resolution 2^-16 on U[0, 1).
+        # hashes of two separate draws (a large share of a cheap model's generation),
+        # resolution 2^-16 on U[0, 1).
         bits = jax.random.bits(jax.random.fold_in(k, t), (N, D), jnp.uint32)
         scale = jnp.asarray(2.0**-16, pos.dtype)
         return ((bits & 0xFFFF).astype(pos.dtype) * scale,
                 (bits >> 16).astype(pos.dtype) * scale)
 
     r1, r2 = jax.vmap(draws)(state.keys, gen)
+    lower, upper = problem.lower, problem.upper
     c1 = params.c1_max * r1
     c2 = params.c2_max * r2
     vmax = (params.velocity_clamp * (upper - lower))[:, None, :]
@@ -414,53 +414,34 @@ def tell(
     return jax.tree.map(keep, s, new)
 
 
-def step(
-    objective: AbstractObjective,
-    state: SwarmState,
-    lower: Float[Array, "C D"],
-    upper: Float[Array, "C D"],
-    data: Any,
-    params: PSOParams,
-    *,
-    max_generations: int,
-    page_size: int | None = None,
-) -> SwarmState:
+def step(problem: SwarmProblem, state: SwarmState, params: PSOParams, *, max_generations: int,
+         page_size: int | None = None) -> SwarmState:
     """One generation of every condition: :func:`ask`, evaluate, :func:`tell`. Pure and
     jittable; `params` must be in the swarm's float dtype (see :func:`swarm`). `page_size`
     (static): evaluate only the conditions still running, this many at a time (see
     :func:`swarm`); `None` evaluates all of them in one batch."""
-    x, v = ask(state, lower, upper, params)
+    x, v = ask(state, problem, params)
     C = x.shape[0]
     if page_size is None or page_size >= C:
-        f = _evaluate(objective, x, data)
+        f = _evaluate(problem.objective, x, problem.data)
     else:
-        f = _evaluate_paged(objective, x, data, ~state.done, page_size)
+        f = _evaluate_paged(problem.objective, x, problem.data, ~state.done, page_size)
     return tell(state, x, v, f, params, max_generations=max_generations)
 
 
 @eqx.filter_jit
-def _swarm(
-    objective: AbstractObjective,
-    lower: Float[Array, "C D"],
-    upper: Float[Array, "C D"],
-    data: Any,
-    keys,
-    params: PSOParams,
-    n_particles: int,
-    max_generations: int,
-    callback: Callable | None,
-    page_size: int | None = None,
-) -> SwarmResult:
+def _swarm(problem: SwarmProblem, keys, params: PSOParams, n_particles: int,
+           max_generations: int, callback: Callable | None,
+           page_size: int | None = None) -> SwarmResult:
     G = max_generations
     # hyperparameters in the swarm's dtype, so a float32 swarm is not promoted to float64
+    dtype = problem.lower.dtype
     params = jax.tree.map(
-        lambda a: a.astype(lower.dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, params)
-    state = init(objective, lower, upper, data, keys, n_particles=n_particles,
-                 max_generations=G)
+        lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, params)
+    state = init(problem, keys, n_particles=n_particles, max_generations=G)
 
     def body(s: SwarmState) -> SwarmState:
-        s = step(objective, s, lower, upper, data, params, max_generations=G,
-                 page_size=page_size)
+        s = step(problem, s, params, max_generations=G, page_size=page_size)
         if callback is not None:
             jax.debug.callback(callback, s.generation, s.done, s.gbest_fitness, ordered=True)
         return s
@@ -507,16 +488,15 @@ def swarm(
     - `dtype`: float dtype the swarm runs in (positions, velocities, fitness), also applied to
         the floating-point leaves of `data` and `objective`. `None` (default) keeps JAX's
         default float (float64 under mrjax). `"float32"` halves the memory traffic and lets
-        XLA:CPU use twice the SIMD lanes and cheaper `exp`/`log`/`tanh` (2-4x faster fitness on
-        the paper grid, see `benchmarks/`); the fitness then carries float32 rounding
-        (relative 1e-6 on the RMS).
+        XLA:CPU use twice the SIMD lanes and cheaper `exp`/`log`/`tanh` (a faster fitness, see
+        `benchmarks/results.md`); the fitness then carries float32 rounding (relative 1e-6 on
+        the RMS).
     - `page_size`: `None` (default) scores every condition every generation, also those
         already stopped (their result is discarded), in one batch. An integer K (static)
         scores only the conditions still running, K at a time: the swarms of one batch stop
-        at different generations (the modified Bouc-Wen swarms on the 30 UTFSM tests: median
-        45, slowest 88), and with pages the last few no longer pay for the rest. Each page is
-        one batch of K conditions x N particles, so K should keep the vector units busy
-        (e.g. a quarter of C); results do not depend on it.
+        at different generations, and with pages the last few no longer pay for the rest. Each
+        page is one batch of K conditions x N particles, so K should keep the vector units
+        busy (e.g. a quarter of C); results do not depend on it.
 
     **Returns:** a :class:`SwarmResult`.
     """
@@ -547,7 +527,7 @@ def swarm(
         objective, data = cast_floats((objective, data), dtype)
         lower, upper = lower.astype(dtype), upper.astype(dtype)
     lower, upper = jax.device_put((np.ascontiguousarray(lower), np.ascontiguousarray(upper)))
-    return _swarm(objective, lower, upper, data, keys, params, int(n_particles),
+    return _swarm(SwarmProblem(objective, lower, upper, data), keys, params, int(n_particles),
                   int(max_generations), callback,
                   None if page_size is None or page_size >= C else int(page_size))
 

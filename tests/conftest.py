@@ -14,18 +14,14 @@ import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-REPO = Path(__file__).resolve().parents[1]
-
 
 def utfsm_dir() -> Path | None:
-    """The UTFSM data: $MRJAX_DATA, or ../shared/data/utfsm beside the repository."""
-    env = os.environ.get("MRJAX_DATA")
-    cands = [Path(env)] if env else []
-    cands += [REPO.parent / "shared" / "data" / "utfsm", REPO / ".." / ".." / "shared" / "data" / "utfsm"]
-    for c in cands:
-        if c.is_dir() and any(c.glob("*A.txt")):
-            return c.resolve()
-    return None
+    """The UTFSM data (`helpers.default_data_dir`: $MRJAX_DATA, or ../shared/data/utfsm beside
+    the repository) if it holds the tests, else None."""
+    from helpers import default_data_dir
+
+    d = default_data_dir()
+    return d.resolve() if d is not None and d.is_dir() and any(d.glob("*A.txt")) else None
 
 
 @pytest.fixture(autouse=True)

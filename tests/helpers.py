@@ -1,6 +1,6 @@
 """Shared test material: every model name, a representative parameter vector per model, Spencer's
-1997 modified Bouc-Wen set, a sinusoidal excitation, the three file layouts of issue 14, and
-checks of the command line's outputs.
+1997 modified Bouc-Wen set, a sinusoidal excitation, the three file layouts of issue 14,
+checks of the command line's outputs, and where the UTFSM tests are (`default_data_dir`).
 
 All values are SI. `TRUE_PARAMS[name]` lies inside `mrjax.models.get(name).bounds` and gives forces
 of a few hundred newtons to about 1.5 kN at 2.5 Hz / 15 mm, the scale of the RD-1005-3 in Kwok
@@ -45,6 +45,24 @@ METHODS: tuple[str, ...] = ("pso+lm", "pso", "lm")
 PROBLEM_KINDS: dict[str, str] = {"TestsProblem": "mrjax.fit",
                                  "LawsProblem": "mrjax.generalize.generalize(method='joint'), "
                                                 "mrjax.generalize.identify"}
+
+
+def default_data_dir() -> Path | None:
+    """Where the UTFSM damper measurements are, if anywhere.
+
+    **Returns:** the path in the environment variable `MRJAX_DATA` if it is set (whether or not
+    it exists, so that a wrong setting fails loudly when loaded); otherwise the first existing
+    directory `shared/data/utfsm` in the parent of the working directory or in a parent of this
+    checkout (which covers `../shared/data/utfsm` beside it); otherwise `None`.
+    """
+    env = os.environ.get("MRJAX_DATA")
+    if env:
+        return Path(env).expanduser()
+    tail = Path("shared") / "data" / "utfsm"
+    for parent in (Path.cwd().parent, *Path(__file__).resolve().parents):
+        if (parent / tail).is_dir():
+            return (parent / tail).resolve()
+    return None
 
 
 def named(name: str, **values: float) -> np.ndarray:

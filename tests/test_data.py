@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 import scipy.io
-from helpers import raises_one_line
+from helpers import default_data_dir, raises_one_line
 
 import mrjax.data as md
 
@@ -148,7 +148,7 @@ def test_utfsm_files(utfsm, utfsm_conditions):
     assert (c.amplitude, c.frequency, c.current) == pytest.approx((0.002, 5.0, 0.25))
     c = conds["10mm1Hz1A"]
     assert (c.amplitude, c.frequency, c.current) == pytest.approx((0.010, 1.0, 1.0))
-    assert md.default_data_dir() is not None
+    assert default_data_dir() is not None
 
 
 def test_utfsm_single_file(utfsm):
@@ -307,7 +307,10 @@ def test_load_batch_and_lists(tmp_path):
 
 def test_default_data_dir(monkeypatch, tmp_path):
     monkeypatch.setenv("MRJAX_DATA", str(tmp_path))
-    assert md.default_data_dir() == tmp_path
+    assert default_data_dir() == tmp_path
+    monkeypatch.setenv("MRJAX_DATA", str(tmp_path / "missing"))  # as given: fails when loaded
+    assert default_data_dir() == tmp_path / "missing"
+    assert not hasattr(md, "default_data_dir")  # a test convenience, not library API
 
 
 # --------------------------------------------------------------------------------------------

@@ -18,7 +18,6 @@ from ._csv import load_csv as load_csv
 from ._describe import ConditionReport as ConditionReport
 from ._describe import describe as describe
 from ._files import DATA_SUFFIXES as DATA_SUFFIXES
-from ._files import default_data_dir as default_data_dir
 from ._files import find_files as find_files
 from ._files import parse_label as parse_label
 from ._frame import from_frame as from_frame

@@ -11,27 +11,16 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 from typing import Any
 
 from .._errors import InputError
-from ._units import check_unit, parse_column, quantity_value
+from ._units import COLUMN_QUANTITIES, check_unit, parse_column, quantity_value
 
-#: Roles a column can play, and the quantity of its unit (None: text).
-ROLES: Mapping[str, str | None] = MappingProxyType(
-    {
-        "time": "time",
-        "displacement": "length",
-        "velocity": "velocity",
-        "force": "force",
-        "current": "current",
-        "command": "command",
-        "frequency": "frequency",
-        "amplitude": "length",
-        "condition": None,
-    }
-)
+#: Roles a column can play, and the quantity of its unit (None: text): the quantities of the
+#: CSV column names, and the `condition` column that tells tests apart.
+ROLES: Mapping[str, str | None] = MappingProxyType({**COLUMN_QUANTITIES, "condition": None})
 #: Roles whose values vary sample by sample; the others are constant within a condition.
 SIGNAL_ROLES: tuple[str, ...] = ("time", "displacement", "velocity", "force", "current", "command")
 
@@ -39,6 +28,15 @@ SIGNAL_ROLES: tuple[str, ...] = ("time", "displacement", "velocity", "force", "c
 _META_QUANTITY = {"current": "current", "frequency": "frequency", "amplitude": "length",
                   "sample_rate": "frequency"}
 META_SI = {"current": "A", "frequency": "Hz", "amplitude": "m", "sample_rate": "Hz"}
+
+
+def is_number(cell: str) -> bool:
+    """Whether a text cell reads as a number (a data cell rather than a header or units row)."""
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,6 +188,35 @@ class Meta:
         return all(getattr(self, f.name) is None for f in dataclasses.fields(Meta))
 
 
+def meta_at(where: str, **values: Any) -> Meta:
+    """`Meta(**values)`, an :class:`mrjax.InputError` prefixed with `where`."""
+    try:
+        return Meta(**values)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
+#: The signals of a one-test loader's `units=` argument, and the quantity of each unit.
+SIGNAL_UNITS: tuple[tuple[str, str], ...] = (
+    ("time", "time"), ("displacement", "length"), ("velocity", "velocity"), ("force", "force"))
+
+
+def loader_arguments(where: str, units: Sequence[str], **meta: Any
+                     ) -> tuple[tuple[str, str, str, str], Meta]:
+    """The `units=` (time, displacement, velocity, force) and metadata keywords of a one-test
+    loader (`load_txt`, `load_mat`), checked: `(units, Meta)`, or an
+    :class:`mrjax.InputError` naming `where`."""
+    if isinstance(units, str) or len(units) != 4:
+        raise InputError(
+            f"{where}: units must be 4 units (time, displacement, velocity, force), "
+            f"e.g. ('s', 'mm', 'mm/s', 'N'); got {units!r}"
+        )
+    units = tuple(str(u) for u in units)
+    for (name, quantity), u in zip(SIGNAL_UNITS, units):
+        check_unit(u, quantity, what=name, where=where)
+    return units, meta_at(where, **meta)  # type: ignore[return-value]
+
+
 def meta_key(key: str, where: str) -> tuple[str, str | None]:
     """`current_mA` -> ("current", "mA"); `label` -> ("label", None); `current` -> (.., None)."""
     if key == "label":
@@ -232,10 +259,7 @@ def meta_from_table(table: Mapping[str, Any], where: str, *, allow_rate: bool = 
             raise InputError(f"{where}: {given[name]!r} and {key!r} both give {name}")
         given[name] = str(key)
         values[name] = _meta_value(name, unit, value, where, str(key))
-    try:
-        return Meta(**values)
-    except InputError as e:
-        raise InputError(f"{where}: {e}") from None
+    return meta_at(where, **values)
 
 
 def as_meta(value: Meta | Mapping[str, Any] | None, where: str) -> Meta:
@@ -246,10 +270,7 @@ def as_meta(value: Meta | Mapping[str, Any] | None, where: str) -> Meta:
     if isinstance(value, Mapping):
         fields = {f.name for f in dataclasses.fields(Meta)}
         if set(value) <= fields:
-            try:
-                return Meta(**value)
-            except InputError as e:
-                raise InputError(f"{where}: {e}") from None
+            return meta_at(where, **value)
         return meta_from_table(value, where)
     raise InputError(f"{where}: expected metadata (a Meta or a mapping), got {type(value).__name__}")
 

@@ -8,9 +8,8 @@ pyarrow's CSV parser (C++, on every core) reads a block straight into float64 co
 with another number of fields, an empty, non-numeric or `nan` cell, a blank line, unusual
 whitespace), is read again by the exact reader: Python's `csv` module, row by row, with the
 rules and messages of the format (a bad cell is named by its line and column). A file of
-quirks that the rules tolerate is therefore read as they say, and a well-formed file of
-millions of rows costs about what `pandas.read_csv` costs. The memory held is the columns asked
-for plus one block.
+quirks that the rules tolerate is therefore read as they say, and a well-formed file is read by
+pyarrow's parser alone. The memory held is the columns asked for plus one block.
 """
 
 from __future__ import annotations
@@ -26,7 +25,7 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import Codes, LineMap, ReadColumns, assemble
-from ._columns import Column, Meta
+from ._columns import Column, Meta, is_number
 from ._condition import Condition
 from ._files import PathLike, check_file, stem
 from ._pieces import join_codes, join_floats_lazily, view
@@ -63,14 +62,6 @@ def _delimiter(text: str) -> str:
         if d in header:
             return d
     return ","
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
 
 
 def conventional_columns(header: list[str], src: str, strict: bool) -> dict[str, Column]:
@@ -276,7 +267,7 @@ def _head(data: bytes, eof: bool, src: str, columns: Mapping[str, Column] | None
         (r, c) for r, cs in wide.items() for c in cs]
     first = rows[0][0]
     headerless = (not strict and columns is not None and all(c.name is None for _, c in asked)
-                  and all(_is_number(c) for c in first if c.strip()))
+                  and all(is_number(c) for c in first if c.strip()))
     header = None if headerless else [cell.strip() for cell in first]
     body = rows if headerless else rows[1:]
     notes: list[str] = []
@@ -299,7 +290,7 @@ def _head(data: bytes, eof: bool, src: str, columns: Mapping[str, Column] | None
     skipped = 0
     if not strict and lay.numeric:
         limit = min(_MAX_UNIT_ROWS, len(cells) - 1)  # the head holds every row when < 4
-        while skipped < limit and not any(_is_number(cells[skipped][j])
+        while skipped < limit and not any(is_number(cells[skipped][j])
                                           for j in lay.numeric.values()):
             skipped += 1
         if skipped:

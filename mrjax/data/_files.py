@@ -150,23 +150,3 @@ def find_files(paths: PathLike | Sequence[PathLike]) -> list[Path]:
         raise InputError("no data files given (empty list of paths)")
     return files
 
-
-def default_data_dir() -> Path | None:
-    """Where the UTFSM damper measurements are, if anywhere.
-
-    **Returns:** the path in the environment variable `MRJAX_DATA` if it is set (whether or not
-    it exists, so that a wrong setting fails loudly when loaded); otherwise the first existing
-    directory `shared/data/utfsm` in the parent of the working directory, or in a parent of the
-    installed package (which covers `../shared/data/utfsm` beside a source checkout); otherwise
-    `None`.
-    """
-    env = os.environ.get("MRJAX_DATA")
-    if env:
-        return Path(env).expanduser()
-    tail = Path("shared") / "data" / "utfsm"
-    candidates = [Path.cwd().parent / tail]
-    candidates += [parent / tail for parent in Path(__file__).resolve().parents]
-    for c in candidates:
-        if c.is_dir():
-            return c.resolve()
-    return None

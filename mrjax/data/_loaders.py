@@ -1,6 +1,6 @@
 """Load test files into SI :class:`Condition`s: by their own conventions, or by a data spec.
 
-- `.txt` / `.dat`: headerless whitespace columns `t, x, xdot, F` (UTFSM style) or `t, x, F`,
+- `.txt` / `.dat`: headerless whitespace columns `t, x, xdot, F` or `t, x, F`,
     one test per file, units by argument (default `s, mm, mm/s, N`), metadata from the file
     name (`25mm0x1Hz0x75A.txt` = 25 mm, 0.1 Hz, 0.75 A). (`mrjax.data.load_txt`)
 - `.csv`: long format with a header whose column names carry their units (`time_s`,

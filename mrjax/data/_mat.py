@@ -8,12 +8,10 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import ReadColumns, assemble
-from ._columns import Column, Meta
+from ._columns import Column, Meta, loader_arguments
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
 from ._progress import advance
-from ._text import units_check
-from ._units import check_unit
 
 #: SI units, the default of :func:`load_mat`: time, displacement, velocity, force.
 SI_UNITS: tuple[str, str, str, str] = ("s", "m", "m/s", "N")
@@ -162,12 +160,8 @@ def _conventional(data: Mapping, present: list[str], src: str,
 def _matrix_columns(data: Mapping, matrix: str, columns: Sequence[str | None] | None, src: str,
                     units: Sequence[str], variables: Mapping[str, str]) -> dict[str, Column]:
     """The legacy `matrix=`, `columns=` arguments as spec columns (one signal per column)."""
+    _matrix(data, matrix, src)  # a 2-D numeric matrix, or the error naming it
     m = np.asarray(data[matrix])
-    if m.dtype.kind not in "fiub" or m.ndim != 2:
-        raise InputError(
-            f"{src}: variable {matrix!r} must be a 2-D numeric matrix, got shape {m.shape} "
-            f"of {m.dtype}"
-        )
     if columns is None:
         for count in (m.shape[1], m.shape[0]):
             if count in (3, 4):
@@ -198,6 +192,41 @@ def _matrix_columns(data: Mapping, matrix: str, columns: Sequence[str | None] | 
         )
     scale = dict(zip(_LEGACY_SIGNALS, units))
     return {_ROLE[c]: Column(matrix, j, scale[c]) for j, c in enumerate(columns) if c is not None}
+
+
+def _named_columns(data: Mapping, present: list[str], src: str, units: Sequence[str],
+                   variables: Mapping[str, str], matrix: str | None,
+                   columns: Sequence[str | None] | None) -> dict[str, Column]:
+    """The columns that `load_mat`'s `variables=` and `matrix=`, `columns=` arguments name."""
+    listing = _listing(present)
+    roles = _LEGACY_SIGNALS + _META
+    for role, name in variables.items():
+        if role not in roles:
+            raise InputError(
+                f"{src}: unknown key {role!r} in variables; accepted: {', '.join(roles)}"
+            )
+        if name not in data:
+            raise InputError(
+                f"{src}: variable {name!r} ({role}) not found; variables present: {listing}"
+            )
+    cols: dict[str, Column] = {}
+    if matrix is not None:
+        if matrix not in data:
+            raise InputError(
+                f"{src}: matrix variable {matrix!r} not found; variables present: {listing}"
+            )
+        cols = _matrix_columns(data, matrix, columns, src, units, variables)
+    scale = dict(zip(_LEGACY_SIGNALS, units))
+    for role in _LEGACY_SIGNALS:
+        if role in variables:
+            cols[_ROLE[role]] = Column(variables[role], None, scale[role])
+    for role in ("t", "x", "force"):
+        if _ROLE[role] not in cols:
+            raise InputError(
+                f"{src}: no variable given for {role!r} (variables={{{role!r}: ...}}); "
+                f"variables present: {listing}"
+            )
+    return cols
 
 
 def load_mat(
@@ -252,49 +281,16 @@ def load_mat(
     present when one is missing.
     """
     src = str(path)
-    units = units_check(units, src)
-    for name, u, q in zip(("time", "displacement", "velocity", "force"), units,
-                          ("time", "length", "velocity", "force")):
-        check_unit(u, q, what=name, where=src)
-    try:
-        given = Meta(label=label, current=current, frequency=frequency, amplitude=amplitude)
-    except InputError as e:
-        raise InputError(f"{src}: {e}") from None
+    units, given = loader_arguments(src, units, label=label, current=current,
+                                    frequency=frequency, amplitude=amplitude)
     data, present = _load(path)
-    listing = _listing(present)
-    roles = _LEGACY_SIGNALS + _META
     if columns is not None and matrix is None and variables is not None:
         raise InputError(f"{src}: columns= applies only with matrix=")
     if variables is None and matrix is None:
         read = read_mat(path, columns=None, strict=True, units=units)
     else:
         variables = dict(variables or {})
-        for role, name in variables.items():
-            if role not in roles:
-                raise InputError(
-                    f"{src}: unknown key {role!r} in variables; accepted: {', '.join(roles)}"
-                )
-            if name not in data:
-                raise InputError(
-                    f"{src}: variable {name!r} ({role}) not found; variables present: {listing}"
-                )
-        cols: dict[str, Column] = {}
-        if matrix is not None:
-            if matrix not in data:
-                raise InputError(
-                    f"{src}: matrix variable {matrix!r} not found; variables present: {listing}"
-                )
-            cols = _matrix_columns(data, matrix, columns, src, units, variables)
-        scale = dict(zip(_LEGACY_SIGNALS, units))
-        for role in _LEGACY_SIGNALS:
-            if role in variables:
-                cols[_ROLE[role]] = Column(variables[role], None, scale[role])
-        for role in ("t", "x", "force"):
-            if _ROLE[role] not in cols:
-                raise InputError(
-                    f"{src}: no variable given for {role!r} (variables={{{role!r}: ...}}); "
-                    f"variables present: {listing}"
-                )
+        cols = _named_columns(data, present, src, units, variables, matrix, columns)
         read = read_mat(path, columns=cols, strict=True, units=units)
         read.file_meta = Meta(**{r: _scalar(data, variables[r], r, src) for r in _META
                                  if r in variables})

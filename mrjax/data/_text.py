@@ -1,4 +1,5 @@
-"""Headerless text files (UTFSM style): numbers in columns, one test per file."""
+"""Headerless text files: whitespace-separated columns `t, x, xdot, F` (or `t, x, F`), one test
+per file."""
 
 from __future__ import annotations
 
@@ -11,27 +12,17 @@ import numpy as np
 
 from .._errors import InputError
 from ._build import LineMap, ReadColumns, assemble
-from ._columns import Column, Meta
+from ._columns import Column, is_number, loader_arguments
 from ._condition import Condition
 from ._files import PathLike, check_file, name_meta, stem
 from ._progress import advance
-from ._units import check_unit
 
-#: Default units of :func:`load_txt`: time, displacement, velocity, force (UTFSM files).
+#: Default units of :func:`load_txt`: time, displacement, velocity, force (displacement in
+#: millimetres, as damper test rigs usually log it).
 TXT_UNITS: tuple[str, str, str, str] = ("s", "mm", "mm/s", "N")
 
-_SHORT = {"time": "t", "displacement": "x", "velocity": "xdot", "force": "force"}
 #: Lines before the first data line that may be skipped as headers (spec mode).
 _MAX_HEADER_LINES = 5
-
-
-def units_check(units: Sequence[str], where: str) -> tuple[str, str, str, str]:
-    if isinstance(units, str) or len(units) != 4:
-        raise InputError(
-            f"{where}: units must be 4 units (time, displacement, velocity, force), "
-            f"e.g. ('s', 'mm', 'mm/s', 'N'); got {units!r}"
-        )
-    return tuple(str(u) for u in units)  # type: ignore[return-value]
 
 
 def _conventional(ncol: int, units: Sequence[str]) -> dict[str, Column]:
@@ -54,14 +45,6 @@ def _split(line: str) -> list[str]:
     if cells and cells[0] == "":
         cells = cells[1:]
     return cells
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
 
 
 def _parse(path: Path, names: Mapping[int, str] | None, strict: bool,
@@ -90,7 +73,7 @@ def _parse(path: Path, names: Mapping[int, str] | None, strict: bool,
                 else:
                     role_of = dict(names)
                 used = [k for k in role_of if k < len(cells)]
-                if (not strict and not any(_is_number(cells[k]) for k in used)
+                if (not strict and not any(is_number(cells[k]) for k in used)
                         and len(skipped) < _MAX_HEADER_LINES):
                     skipped.append(lineno)
                     continue
@@ -193,7 +176,7 @@ def load_txt(
     parse_name: bool = True,
     velocity_window_s: float | None = None,
 ) -> Condition:
-    """Load one test from a headerless text file (UTFSM style).
+    """Load one test from a headerless text file of whitespace-separated columns.
 
     The file holds whitespace-separated numbers (commas or semicolons also separate them; `#`
     and `%` start comments; a trailing delimiter is ignored), in 4 columns `t, x, xdot, F` or 3
@@ -205,7 +188,7 @@ def load_txt(
 
     - `path`: the file.
     - `units`: units of (time, displacement, velocity, force); default `("s", "mm", "mm/s",
-        "N")` as in the UTFSM files. Any unit of the right dimension (see `mrjax.data.UNITS`).
+        "N")`. Any unit of the right dimension (see `mrjax.data.UNITS`).
         Values are converted to SI.
     - `current` [A], `frequency` [Hz], `amplitude` [m]: test metadata. Those not given are read
         from the file name by `mrjax.data.parse_label`.
@@ -221,15 +204,8 @@ def load_txt(
     non-numeric cell, a wrong number of columns, an unknown unit, an unparsable file name, or
     values that :class:`Condition` rejects.
     """
-    where = str(path)
-    units = units_check(units, where)
-    for name, u, q in zip(("time", "displacement", "velocity", "force"), units,
-                          ("time", "length", "velocity", "force")):
-        check_unit(u, q, what=name, where=where)
-    try:
-        given = Meta(label=label, current=current, frequency=frequency, amplitude=amplitude)
-    except InputError as e:
-        raise InputError(f"{where}: {e}") from None
+    units, given = loader_arguments(str(path), units, label=label, current=current,
+                                    frequency=frequency, amplitude=amplitude)
     read = read_text(path, columns=None, strict=True, units=units)
     meta = name_meta(path, given) if parse_name else given
     (cond,) = assemble(read, meta=meta, window_s=velocity_window_s, strict=True)

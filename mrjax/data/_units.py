@@ -9,7 +9,8 @@ is written `_`: `mm_s` is `mm/s`.
 Any unit that `pint` knows is accepted if it has the dimension of the quantity: `cm`, `in`,
 `ms`, `kN`, `lbf`, `mA`, `mm/s`, `in/s`, `mV`, ... A unit of the wrong dimension is an
 :class:`mrjax.InputError` such as "displacement unit 'N' is not a length". The one unit registry
-is built on first use (importing `pint` costs about 0.3 s, paid only when a unit is read).
+is built on first use (importing `pint` and building its registry take a noticeable
+fraction of a second, paid only when a unit other than SI is read).
 """
 
 from __future__ import annotations
@@ -148,7 +149,7 @@ def check_unit(unit: str, quantity: str, *, what: str, where: str = "") -> float
     if quantity not in _QUANTITIES:
         raise InputError(f"unknown quantity {quantity!r}; known: {', '.join(_QUANTITIES)}")
     if _canonical(unit) in _SI.get(quantity, ()):  # the SI unit itself: no need of pint's
-        return 1.0  # registry (about 0.7 s to build; a fleet's files are often in SI)
+        return 1.0  # registry (slow to build; a fleet's files are often in SI)
     prefix = f"{where}: " if where else ""
     prefix += f"{what} unit" if what else "unit"
     noun = _QUANTITIES[quantity][2]

@@ -20,11 +20,8 @@ window of displacement samples centred on a sample, and takes the polynomial's s
     (exact frequency response $H_W$ at every bin), and the window with the least $E$ is used.
     This reads the bandwidth of the signal, not one spectral peak: a broadband (e.g.
     earthquake-type) record gets a window short enough for its fastest motion, a noisy sine
-    one long enough to average its noise. (Until issue 14 the window was 1/20 of the
-    dominant period, which smoothed broadband records flat. RMS velocity error, old -> now:
-    band-limited 0.1-5 Hz random motion at 1 kHz with noise 0.5 % of the range, 17-37 % ->
-    1.5-1.8 %; an earthquake-type record (0.1 Hz dominant, flat velocity spectrum to 10 Hz)
-    72 % -> 0.0003 %; a noisy 1 Hz sine (5 um on 8 mm) 0.32 % -> 0.09 %.)
+    one long enough to average its noise. A window tied to one spectral peak (a fixed
+    fraction of the dominant period) would smooth a broadband record flat.
 - **Uniform sampling** (sample intervals equal within 0.1 %) uses `scipy.signal.savgol_filter`.
     **Non-uniform sampling** uses the same fit done directly on the actual sample times: for each
     sample, a least-squares polynomial through the window of neighbouring samples (same number of
@@ -258,7 +255,7 @@ def estimate_velocity(
                 f"record has only {n}"
             )
     if np.max(np.abs(steps - dt)) <= _UNIFORM_RTOL * dt:
-        from scipy.signal import savgol_filter  # imported here: scipy.signal costs ~0.7 s
+        from scipy.signal import savgol_filter  # imported here: scipy.signal is slow to import
 
         return savgol_filter(x, window, polyorder, deriv=1, delta=dt, mode="interp")
     return _local_polyfit_slope(t, x, window, polyorder)

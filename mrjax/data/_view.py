@@ -27,22 +27,20 @@ from ._condition import Batch, Condition, make_batch
 from ._mask import fit_mask
 from ._velocity import velocity_window
 
-#: Samples per period kept for the swarm (periodic records: per excitation period). 64 was
-#: too coarse for the modified Bouc-Wen swarm on the 5 mm / 3 Hz / 0 A UTFSM test (every
-#: 5th sample of 1 kHz): its two swarms fell into a local optimum (18.1 % NRMSE against the
-#: 7.4 % found at 128, which also keeps every other test within 0.17 points).
+#: Samples per period kept for the swarm (periodic records: per excitation period): fine
+#: enough that a hysteretic model's swarm sees the shape of each loop (a coarser view can lead
+#: its swarm into a local optimum that the full record would not favour).
 SAMPLES_PER_PERIOD = 128
-#: Samples per period of the joint laws' swarm (`mrjax.generalize`): its coupled search was
-#: measured at this density (at 128 its full-record polish took 100 steps instead of 25 on the
-#: UTFSM tests).
+#: Samples per period of the joint laws' swarm (`mrjax.generalize`): the density its coupled
+#: search over every record was tuned at (from denser views its full-record polish needs more
+#: steps).
 JOINT_SAMPLES_PER_PERIOD = 64
 #: Samples per period of a broadband record's bandwidth (the whole record is kept).
 BROADBAND_SAMPLES_PER_PERIOD = 32
 #: Samples per period of the spectral peak of a record without a known frequency (random
-#: motion that the bandwidth test does not call broadband, e.g. a 3 s random-command record
-#: peaking at 4.3 Hz): at 128 its view would be cut to its first 4 "periods" (0.9 of 3 s)
-#: and the joint swarm of `mrjax.generalize.identify` missed Spencer's model; at 64 it keeps
-#: 13, the whole record.
+#: motion that the bandwidth test does not call broadband): fewer than for a known frequency,
+#: so that `MAX_SAMPLES` keeps many of its "periods" rather than cutting the record to its
+#: first few.
 ESTIMATED_SAMPLES_PER_PERIOD = 64
 #: About the most samples per periodic record the swarm scores (whole periods).
 MAX_SAMPLES = 1024

@@ -121,7 +121,7 @@ def plot_loops_grid(
     name = _model_name(result)
     note = TANH_STEP_NOTE if name == "kwok" else None
 
-    # manual grid (constrained layout costs seconds at ~70 axes); margins fixed in inches
+    # manual grid (constrained layout is slow with dozens of axes); margins fixed in inches
     left, right, top = 0.62, 0.12, 0.78
     W = max(6.0, left + right + _CELL_W * ncols)
     if note:  # about 15 characters per inch at 7.5 pt

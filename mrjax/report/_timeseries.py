@@ -4,7 +4,7 @@ unreadable scribble.
 
 Like every figure of `mrjax.report`, the functions return a `matplotlib.figure.Figure` built
 without `pyplot`. Long records are drawn through a min/max envelope of a few thousand points
-per line, so a 64 s record at 1 kHz draws as fast as a short one and keeps its peaks.
+per line, so a long record draws about as fast as a short one and keeps its peaks.
 """
 
 from __future__ import annotations
