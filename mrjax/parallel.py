@@ -46,9 +46,14 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ._errors import InputError
 from .data import Batch
 
+__all__ = ["shard_batch", "Devices", "AXIS"]
+# `resolve_devices`, `pad_conditions`, `take_conditions` and `unpad` are public for
+# `mrjax.fitting` (its chunks and devices), not part of the user API (`__all__`).
+
 #: Name of the mesh axis the conditions are sharded over.
 AXIS = "conditions"
-
+#: What a `devices=` argument takes: `"all"`, a count, a sequence of `jax.Device`, or `None`
+#: (see :func:`resolve_devices`).
 Devices = str | int | Sequence[Any] | None
 
 
@@ -87,11 +92,6 @@ def resolve_devices(devices: Devices) -> list:
     if len({(d.platform, d.id) for d in devs}) != len(devs):
         raise InputError("devices lists a device twice")
     return devs
-
-
-def condition_mesh(devices: Devices = "all") -> Mesh:
-    """A one-axis `Mesh` (axis name `"conditions"`) over `devices`."""
-    return Mesh(np.asarray(resolve_devices(devices), dtype=object), (AXIS,))
 
 
 def pad_conditions(batch: Batch, mask: Any, multiple: int) -> tuple[Batch, Any, int]:

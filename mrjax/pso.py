@@ -60,6 +60,23 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 from ._errors import InputError
 from .models import check_box
 
+__all__ = [
+    "swarm",
+    "PSOParams",
+    "default_params",
+    "stability",
+    "MAX_WINDOW",
+    "AbstractObjective",
+    "SwarmProblem",
+    "SwarmResult",
+    # one generation at a time (the loop `swarm` runs): init, then ask / evaluate / tell
+    "SwarmState",
+    "init",
+    "ask",
+    "tell",
+    "step",
+]
+
 # ------------------------------------------------------------------------------ hyperparameters
 
 
@@ -534,7 +551,8 @@ def swarm(
 
 def cast_floats(tree: Any, dtype: Any) -> Any:
     """Cast the floating-point array leaves of a pytree (e.g. an objective module and its data)
-    to `dtype` (how :func:`swarm` runs in float32); other leaves pass unchanged."""
+    to `dtype` (how :func:`swarm` runs in float32); other leaves pass unchanged. Not part of
+    the user API (`swarm(..., dtype=...)` is); the benchmarks use it."""
 
     def cast(a):
         if eqx.is_array(a) and jnp.issubdtype(a.dtype, jnp.floating) and a.dtype != dtype:

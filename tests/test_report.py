@@ -9,6 +9,7 @@ import mrjax
 import mrjax.report as rp
 from mrjax.data import make_batch, paper_grid, paper_parameters
 from mrjax.fitting import FitResult
+from mrjax.report._loops import condition_title
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 MOTIONS = ((1.0, 0.008), (2.0, 0.004))
@@ -98,7 +99,7 @@ def test_loops_grid_measured_vs_fitted(result, batch):
     assert any(ax.get_ylabel() == "F [N]" for ax in axes)
     text = _texts(fig)
     for i in range(batch.n_conditions):  # readable titles: "8 mm, 1 Hz, 0 A"
-        name = rp.condition_title(batch.labels[i], batch.frequency[i], batch.amplitude[i],
+        name = condition_title(batch.labels[i], batch.frequency[i], batch.amplitude[i],
                                   batch.current[i])
         assert name == (f"{1e3 * batch.amplitude[i]:g} mm, {batch.frequency[i]:g} Hz, "
                         f"{batch.current[i]:g} A")

@@ -5,6 +5,7 @@ import pytest
 
 import mrjax.data as md
 from mrjax._errors import InputError
+from mrjax.data._units import check_unit, command_unit  # the loaders' unit check
 
 
 def _raises(fn, *needles):
@@ -42,7 +43,7 @@ HAND = [
 @pytest.mark.parametrize("unit, quantity, factor", HAND)
 def test_hand_values(unit, quantity, factor):
     assert md.unit_scale(unit, quantity=quantity) == pytest.approx(factor, rel=1e-14)
-    assert md.check_unit(unit, quantity, what="x") == pytest.approx(factor, rel=1e-14)
+    assert check_unit(unit, quantity, what="x") == pytest.approx(factor, rel=1e-14)
     assert md.to_si(3.0, unit, quantity=quantity) == pytest.approx(3.0 * factor, rel=1e-14)
 
 
@@ -84,15 +85,13 @@ def test_quantity_strings():
     ],
 )
 def test_wrong_dimension_is_one_clear_line(unit, quantity, needle):
-    _raises(lambda: md.check_unit(unit, quantity, what="displacement", where="f.csv"),
+    _raises(lambda: check_unit(unit, quantity, what="displacement", where="f.csv"),
             "f.csv: ", needle)
 
 
 def test_command_units_keep_their_kind():
-    from mrjax.data._units import command_unit
-
-    assert md.check_unit("V", "command", what="command") == 1.0
-    assert md.check_unit("mA", "command", what="command") == pytest.approx(1e-3)
+    assert check_unit("V", "command", what="command") == 1.0
+    assert check_unit("mA", "command", what="command") == pytest.approx(1e-3)
     assert command_unit("mV") == "V" and command_unit("mA") == "A" and command_unit("A") == "A"
 
 

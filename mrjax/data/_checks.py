@@ -52,7 +52,7 @@ def _factor_hint(ratio: float) -> str:
             f"displacement in {small} given as {large}?")
 
 
-def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
+def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
     """`(ratio, correlation)` of the measured velocity to the derivative of the displacement,
     or None when the record is too short or the motion too small to tell (fewer than 16
     samples, or no displacement signal).
@@ -61,10 +61,6 @@ def velocity_ratio(cond: Condition) -> tuple[float, float] | None:
     (see the module notes), both with their offset and linear drift removed; the correlation
     is theirs.
     """
-    return _ratio(cond.t, cond.x, cond.xdot)
-
-
-def _ratio(t: np.ndarray, x: np.ndarray, xdot: np.ndarray) -> tuple[float, float] | None:
     with np.errstate(over="ignore", invalid="ignore"):  # absurd values: no ratio, no noise
         got = _ratio_of(t, x, xdot)
     return got if got is not None and all(map(math.isfinite, got)) else None

@@ -22,8 +22,6 @@ from ._figures import plot_params_vs_current as plot_params_vs_current
 from ._figures import plot_pso_vs_polish as plot_pso_vs_polish
 from ._figures import plot_rms_vs_current as plot_rms_vs_current
 from ._figures import save_png_bytes as save_png_bytes
-from ._loops import TANH_STEP_NOTE as TANH_STEP_NOTE
-from ._loops import condition_title as condition_title
 from ._loops import plot_data_loops as plot_data_loops
 from ._loops import plot_loops_grid as plot_loops_grid
 from ._posterior import law_posterior_figures as law_posterior_figures
@@ -34,3 +32,34 @@ from ._posterior import plot_predictive_band as plot_predictive_band
 from ._posterior import posterior_figures as posterior_figures
 from ._timeseries import plot_force_time as plot_force_time
 from ._timeseries import plot_records as plot_records
+
+__all__ = [
+    # per-test fits
+    "plot_loops_grid",
+    "plot_force_time",
+    "plot_rms_vs_current",
+    "plot_params_vs_current",
+    "plot_generations_vs_current",
+    "plot_convergence",
+    "plot_pso_vs_polish",
+    # the data as read
+    "plot_data_loops",
+    "plot_records",
+    # laws of a time-varying command
+    "command_figures",
+    "plot_command_record",
+    "plot_laws_vs_command",
+    # posteriors
+    "posterior_figures",
+    "law_posterior_figures",
+    "plot_posterior_intervals",
+    "plot_posterior_pair",
+    "plot_predictive_band",
+    "plot_law_intervals",
+    # output
+    "save_png_bytes",
+    "format_table",
+]
+
+# Imported by `mrjax.reproduce`'s figures, not part of the user API (`__all__`).
+from ._loops import TANH_STEP_NOTE as TANH_STEP_NOTE
