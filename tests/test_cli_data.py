@@ -402,13 +402,12 @@ def test_data_options_in_help():
 
 
 def test_readme_examples_are_the_tested_ones():
-    """The README's commands use the flags fitted above, and its spec files say the same."""
+    """The data guide's commands use the flags fitted above, and its spec files say the same."""
     import re
     import tomllib
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme[readme.index("## Your own files"):readme.index("## Python API")]
+    section = (Path(__file__).resolve().parents[1] / "docs" / "how-to" / "data.md").read_text()
     specs = dict(re.findall(r"```toml\n# (\S+)\n(.*?)```", section, re.S))
     assert set(specs) == {"random.toml", "campaign.toml", "lab.toml"}
     for name, options in (("random.toml", OPTIONS_A), ("campaign.toml", OPTIONS_B),

@@ -151,10 +151,10 @@ def test_acceptance_facts(quick):
 
 
 def _readme_quick_ranges() -> dict[str, tuple[tuple[float, float], tuple[float, float]]]:
-    """The README's table of `mrjax reproduce --quick` numbers: run title -> ((RMS low, high),
-    (generations low, high)); a single number `v` printed with d decimals is v +- half its
-    last digit."""
-    lines = (REPO / "README.md").read_text(encoding="utf-8").splitlines()
+    """The table of `mrjax reproduce --quick` numbers in docs/benchmarks/reproduce.md: run
+    title -> ((RMS low, high), (generations low, high)); a single number `v` printed with d
+    decimals is v +- half its last digit."""
+    lines = (REPO / "docs" / "benchmarks" / "reproduce.md").read_text(encoding="utf-8").splitlines()
     start = next(k for k, ln in enumerate(lines) if "reproduce-quick-ranges" in ln)
 
     def span(cell: str) -> tuple[float, float]:
@@ -174,8 +174,8 @@ def _readme_quick_ranges() -> dict[str, tuple[tuple[float, float], tuple[float, 
 
 
 def test_readme_quick_numbers_hold(quick):
-    """The numbers the README states for `mrjax reproduce --quick` (ranges that hold on any
-    CPU; a single number to its printed digits) are what this run gives."""
+    """The numbers docs/benchmarks/reproduce.md states for `mrjax reproduce --quick` (ranges
+    that hold on any CPU; a single number to its printed digits) are what this run gives."""
     _, _, _, doc = quick
     ranges = _readme_quick_ranges()
     assert set(ranges) == {reproduce.RUN_TITLES[k] for k in QUICK_RUNS}
@@ -184,7 +184,7 @@ def test_readme_quick_numbers_hold(quick):
         (rlo, rhi), (glo, ghi) = ranges[run["title"]]
         assert rlo <= run["median_rms_N"] <= rhi, (key, run["median_rms_N"], (rlo, rhi))
         assert glo <= run["median_generations"] <= ghi, (key, run["median_generations"])
-    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    readme = (REPO / "docs" / "benchmarks" / "reproduce.md").read_text(encoding="utf-8")
     worst = doc["acceptance"]["c_coefficients"]["max_abs_error_pct"]
     assert f"within {worst:.2f} % (quick)" in readme, worst
 
