@@ -16,7 +16,8 @@ from ._progress import advance
 #: SI units, the default of :func:`load_mat`: time, displacement, velocity, force.
 SI_UNITS: tuple[str, str, str, str] = ("s", "m", "m/s", "N")
 
-_LEGACY_SIGNALS = ("t", "x", "xdot", "force")
+#: The signals that `load_mat`'s `variables=` and `columns=` arguments name, and their roles.
+_SIGNALS = ("t", "x", "xdot", "force")
 _ROLE = {"t": "time", "x": "displacement", "xdot": "velocity", "force": "force"}
 _META = ("current", "frequency", "amplitude")
 
@@ -141,9 +142,9 @@ def read_mat(
 
 def _conventional(data: Mapping, present: list[str], src: str,
                   units: Sequence[str]) -> tuple[dict[str, Column], Meta]:
-    scale = dict(zip(_LEGACY_SIGNALS, units))
+    scale = dict(zip(_SIGNALS, units))
     if all(r in data for r in ("t", "x", "force")):
-        cols = {_ROLE[r]: Column(r, None, scale[r]) for r in _LEGACY_SIGNALS if r in data}
+        cols = {_ROLE[r]: Column(r, None, scale[r]) for r in _SIGNALS if r in data}
         meta = Meta(**{r: _scalar(data, r, r, src) for r in _META if r in data})
         return cols, meta
     mats = _matrices(data, present)
@@ -159,13 +160,13 @@ def _conventional(data: Mapping, present: list[str], src: str,
 
 def _matrix_columns(data: Mapping, matrix: str, columns: Sequence[str | None] | None, src: str,
                     units: Sequence[str], variables: Mapping[str, str]) -> dict[str, Column]:
-    """The legacy `matrix=`, `columns=` arguments as spec columns (one signal per column)."""
+    """`load_mat`'s `matrix=`, `columns=` arguments as spec columns (one signal per column)."""
     _matrix(data, matrix, src)  # a 2-D numeric matrix, or the error naming it
     m = np.asarray(data[matrix])
     if columns is None:
         for count in (m.shape[1], m.shape[0]):
             if count in (3, 4):
-                columns = ("t", "x", "force") if count == 3 else _LEGACY_SIGNALS
+                columns = ("t", "x", "force") if count == 3 else _SIGNALS
                 break
         else:
             raise InputError(
@@ -175,9 +176,9 @@ def _matrix_columns(data: Mapping, matrix: str, columns: Sequence[str | None] | 
     columns = tuple(columns)
     named = [c for c in columns if c is not None]
     for c in named:
-        if c not in _LEGACY_SIGNALS:
+        if c not in _SIGNALS:
             raise InputError(
-                f"{src}: unknown column {c!r} in columns; accepted: {', '.join(_LEGACY_SIGNALS)} "
+                f"{src}: unknown column {c!r} in columns; accepted: {', '.join(_SIGNALS)} "
                 f"or None"
             )
     if len(set(named)) != len(named):
@@ -190,7 +191,7 @@ def _matrix_columns(data: Mapping, matrix: str, columns: Sequence[str | None] | 
             f"{src}: matrix {matrix!r} has shape {m.shape}, but columns has "
             f"{len(columns)} entries {columns}"
         )
-    scale = dict(zip(_LEGACY_SIGNALS, units))
+    scale = dict(zip(_SIGNALS, units))
     return {_ROLE[c]: Column(matrix, j, scale[c]) for j, c in enumerate(columns) if c is not None}
 
 
@@ -199,7 +200,7 @@ def _named_columns(data: Mapping, present: list[str], src: str, units: Sequence[
                    columns: Sequence[str | None] | None) -> dict[str, Column]:
     """The columns that `load_mat`'s `variables=` and `matrix=`, `columns=` arguments name."""
     listing = _listing(present)
-    roles = _LEGACY_SIGNALS + _META
+    roles = _SIGNALS + _META
     for role, name in variables.items():
         if role not in roles:
             raise InputError(
@@ -216,8 +217,8 @@ def _named_columns(data: Mapping, present: list[str], src: str, units: Sequence[
                 f"{src}: matrix variable {matrix!r} not found; variables present: {listing}"
             )
         cols = _matrix_columns(data, matrix, columns, src, units, variables)
-    scale = dict(zip(_LEGACY_SIGNALS, units))
-    for role in _LEGACY_SIGNALS:
+    scale = dict(zip(_SIGNALS, units))
+    for role in _SIGNALS:
         if role in variables:
             cols[_ROLE[role]] = Column(variables[role], None, scale[role])
     for role in ("t", "x", "force"):
