@@ -52,7 +52,12 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "reproduce": ("mrjax.reproduce", None),
     "CompareResult": ("mrjax.comparison", "CompareResult"),
     "compare": ("mrjax.comparison", "compare"),
-    "posterior": ("mrjax.bayes", "posterior"),
+    "posterior": ("mrjax.engine", "posterior"),
+    "Sampler": ("mrjax.bayes", "Sampler"),
+    "Chunks": ("mrjax.engine", "Chunks"),
+    "Status": ("mrjax.refine", "Status"),
+    "ResultWarning": ("mrjax._warnings", "ResultWarning"),
+    "WarningKind": ("mrjax._warnings", "WarningKind"),
     "FitResult": ("mrjax.fitting", "FitResult"),
     "fit": ("mrjax.fitting", "fit"),
     "Polish": ("mrjax.engine", "Polish"),
@@ -73,13 +78,18 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers and readers
     from . import refine as refine
     from . import report as report
     from . import reproduce as reproduce
-    from .bayes import posterior as posterior
+    from ._warnings import ResultWarning as ResultWarning
+    from ._warnings import WarningKind as WarningKind
+    from .bayes import Sampler as Sampler
     from .comparison import CompareResult as CompareResult
     from .comparison import compare as compare
+    from .engine import Chunks as Chunks
     from .engine import Polish as Polish
     from .engine import Swarm as Swarm
+    from .engine import posterior as posterior
     from .fitting import FitResult as FitResult
     from .fitting import fit as fit
+    from .refine import Status as Status
 
 
 def __getattr__(name: str):

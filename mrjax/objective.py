@@ -83,15 +83,18 @@ def residuals(
 
 class ConditionResidual(eqx.Module):
     """The masked residuals of `model` on one condition as a module (hashable: a solve compiled
-    for it is reused for every call with the same model and shapes):
-    `ConditionResidual(model)(theta (P,), (x, xdot, dt, force, mask)) -> (T,)` [N], see
-    :func:`residuals`."""
+    for it is reused for every call with the same model and shapes), the one residual of the
+    per-test problem: `ConditionResidual(model)(theta (P,), (x, xdot, dt, force, mask)) ->
+    (T,)` [N] (see :func:`residuals`) for the polish; with `blocks=True` the posterior's form,
+    `((r (1, T), mask (1, T)),)`: one block of one record (see `mrjax.bayes.Likelihood`)."""
 
     model: AbstractModel
+    blocks: bool = eqx.field(static=True, default=False)
 
-    def __call__(self, theta: Float[ArrayLike, " P"], data: tuple) -> Float[Array, " T"]:
+    def __call__(self, theta: Float[ArrayLike, " P"], data: tuple):
         x, xdot, dt, force, mask = data
-        return residuals(self.model, theta, x, xdot, dt, force, mask)
+        r = residuals(self.model, theta, x, xdot, dt, force, mask)
+        return ((r[None, :], mask[None, :]),) if self.blocks else r
 
 
 def fitness(

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from .._io import json_safe
+from .._warnings import ResultWarning, WarningKind
 
 #: A parameter whose rank-normalized split R-hat exceeds this has not converged (Vehtari et
 #: al. 2021).
@@ -45,7 +46,10 @@ class Posterior:
     - `lp` (U, C, N) log posterior density (up to a constant; of the sampler's coordinates);
         `diverging` (U, C, N); `n_steps` (U, C, N) leapfrog steps of each draw;
         `accept` (U, C, N) mean acceptance probability; `step_size` (U, C) adapted;
-        `warmup_steps` (U, C, W) leapfrog steps of each warmup step (None if not kept);
+        `warmup_steps` (U, C) leapfrog steps of each chain's warmup and `warmup_length` (U,)
+        its steps (None if not kept); `rounds` (U,) the continuation rounds each unit took
+        (0: converged in the first; see `mrjax.bayes.Sampler.continuations`: a unit of round
+        r kept every 2^r-th of 2^r x the draws after 2^r x the warmup);
         `gradient_error` the largest whitened error of an approximate gradient at the start
         (None where the gradient is exact; above `GRADIENT_TOL` the exact one was used, see
         `mrjax.bayes.sample`); `linear` the names of the unknowns integrated out of the
@@ -79,6 +83,8 @@ class Posterior:
     timings: dict[str, float]
     param_units: tuple[str, ...] | None = None
     warmup_steps: np.ndarray | None = None
+    warmup_length: np.ndarray | None = None
+    rounds: np.ndarray | None = None
     gradient_error: float | None = None
     linear: tuple[str, ...] = ()
 
@@ -232,24 +238,61 @@ class Posterior:
                 "divergences": int(self.diverging.sum()),
                 "divergences_per_unit": [int(v) for v in self.diverging.sum(axis=(1, 2))],
                 "leapfrog_per_draw": float(self.n_steps.mean()),
-                "leapfrog_per_warmup_step": float(self.warmup_steps.mean())
-                if self.warmup_steps is not None else float("nan"),
+                "leapfrog_per_warmup_step": self._per_warmup_step(),
+                "continued_units": int(np.sum(self.rounds > 0)) if self.rounds is not None
+                else 0,
                 "gradient_error": float("nan") if self.gradient_error is None
                 else self.gradient_error,
                 "acceptance": float(self.accept.mean()),
                 "step_size_median": float(np.median(self.step_size))}
 
-    def problems(self) -> list[str]:
-        """One line per convergence problem: R-hat > `RHAT_MAX`, bulk or tail ESS < `ESS_MIN`,
-        divergent transitions, unknowns held, draws of an unknown integrated out beyond its
-        bounds; empty when none."""
+    def _per_warmup_step(self) -> float:
+        if self.warmup_steps is None:
+            return float("nan")
+        length = (np.full(self.n_units, self.sampler.warmup) if self.warmup_length is None
+                  else np.asarray(self.warmup_length))
+        return float(np.sum(self.warmup_steps) / max(np.sum(length) * self.n_chains, 1))
+
+    def unconverged(self) -> np.ndarray:
+        """(U,) the units whose chains missed: R-hat > `RHAT_MAX` or bulk or tail ESS <
+        `ESS_MIN` for a sampled variable (held ones excepted), or a divergent transition."""
+        bad = self.diverging.any(axis=(1, 2))
+        for key, miss in (("r_hat", lambda a: a > RHAT_MAX), ("ess_bulk", lambda a: a < ESS_MIN),
+                          ("ess_tail", lambda a: a < ESS_MIN)):
+            for v, a in self._diag[key].items():
+                a2 = a.reshape(a.shape[0], -1)
+                skip = self.held[:, self.names.index(v)] if v in self.names else False
+                bad = bad | (np.any(~np.isfinite(a2) | miss(a2), axis=1) & ~skip)
+        return bad
+
+    def with_units(self, rows: np.ndarray, other: Posterior, round_: int) -> Posterior:
+        """This posterior with the units `rows` replaced by `other`'s (a continuation round
+        `round_` of those units, in their order)."""
+        rows = np.asarray(rows, int)
+        out = {}
+        for f in ("theta", "sigma", "rho", "lp", "diverging", "n_steps", "accept", "step_size",
+                  "warmup_steps", "warmup_length", "rounds"):
+            a, b = getattr(self, f), getattr(other, f)
+            if a is None or b is None:
+                continue
+            a = np.array(a)
+            a[rows] = round_ if f == "rounds" else b
+            out[f] = a
+        return dataclasses.replace(self, **out)
+
+    def problems(self) -> list[ResultWarning]:
+        """One :class:`mrjax.ResultWarning` per convergence problem: R-hat > `RHAT_MAX`, bulk
+        or tail ESS < `ESS_MIN`, divergent transitions, unknowns held, draws of an unknown
+        integrated out beyond its bounds; empty when none."""
+        return self._convergence() + self._held_and_beyond() + self._divergences()
+
+    def _units(self, n: int) -> str:  # "3 conditions", "1 condition", "the laws"
+        if self.unit_dim == "laws":
+            return "the laws"
+        return f"{n} {self.unit_dim}{'' if n == 1 else 's'}"
+
+    def _convergence(self) -> list[ResultWarning]:
         out = []
-
-        def units(n: int) -> str:  # "3 conditions", "1 condition", "the laws"
-            if self.unit_dim == "laws":
-                return "the laws"
-            return f"{n} {self.unit_dim}{'' if n == 1 else 's'}"
-
         for key, bad, what in (("r_hat", lambda a: a > RHAT_MAX, f"R-hat > {RHAT_MAX}"),
                                ("ess_bulk", lambda a: a < ESS_MIN, f"bulk ESS < {ESS_MIN}"),
                                ("ess_tail", lambda a: a < ESS_MIN, f"tail ESS < {ESS_MIN}")):
@@ -265,36 +308,56 @@ class Posterior:
             if hits:
                 worst = max(hits, key=lambda h: h[2]) if key == "r_hat" else \
                     min(hits, key=lambda h: h[2])
-                n_units = len({h[1] for h in hits})
-                out.append(f"posterior not converged: {what} for {len(hits)} variable(s) in "
-                           f"{units(n_units)} (worst {worst[0]} on {worst[1]!r}: "
-                           f"{worst[2]:.4g}); run more --draws / --warmup")
+                labels = sorted({h[1] for h in hits})
+                rounds = "" if self.rounds is None or not np.any(self.rounds) else \
+                    f" after {int(np.max(self.rounds))} continuation round(s)"
+                out.append(ResultWarning(
+                    WarningKind.NOT_CONVERGED,
+                    f"posterior not converged{rounds}: {what} for {len(hits)} variable(s) in "
+                    f"{self._units(len(labels))} (worst {worst[0]} on {worst[1]!r}: "
+                    f"{worst[2]:.4g}); give more draws / warmup or continuations",
+                    conditions=labels, parameters=sorted({h[0] for h in hits})))
+        return out
+
+    def _held_and_beyond(self) -> list[ResultWarning]:
+        out = []
         held = self.held
         for j in np.flatnonzero(held.any(axis=0)):
             rows = np.flatnonzero(held[:, j])
-            out.append(f"posterior: {self.names[j]} held at its fitted value in "
-                       f"{units(rows.size)} (first {self.labels[rows[0]]!r}): the data leave "
-                       f"a direction of the unknowns undetermined (a symmetry of the model, "
-                       f"or no effect on these records); the others' posterior is "
-                       f"conditional on it")
+            out.append(ResultWarning(
+                WarningKind.HELD,
+                f"posterior: {self.names[j]} held at its fitted value in "
+                f"{self._units(rows.size)} (first {self.labels[rows[0]]!r}): the data leave "
+                "a direction of the unknowns undetermined (a symmetry of the model, or no "
+                "effect on these records); the others' posterior is conditional on it",
+                conditions=[self.labels[i] for i in rows], parameters=[self.names[j]]))
         for n in self.linear:  # integrated out: a flat prior on the whole line, not the box
             j = self.names.index(n)
             th = self.theta[..., j]
             out_box = (th < self.lower[:, None, None, j]) | (th > self.upper[:, None, None, j])
             if out_box.any():
                 i = int(np.argmax(out_box.sum(axis=(1, 2))))
-                out.append(f"posterior: {n}, integrated out of the log-density, has "
-                           f"{int(out_box.sum())} draw(s) beyond its bounds (most on "
-                           f"{self.labels[i]!r}): its posterior reaches a bound, where the "
-                           f"integral over the whole line is not the box's")
-        div = self.diverging.sum(axis=(1, 2))
-        if div.sum():
-            i = int(np.argmax(div))
-            out.append(f"posterior: {int(div.sum())} divergent transition(s) in "
-                       f"{units(int(np.sum(div > 0)))} (most: {int(div[i])} on "
-                       f"{self.labels[i]!r}): the draws near a sharp or non-finite region "
-                       f"may be biased")
+                out.append(ResultWarning(
+                    WarningKind.BEYOND_BOUNDS,
+                    f"posterior: {n}, integrated out of the log-density, has "
+                    f"{int(out_box.sum())} draw(s) beyond its bounds (most on "
+                    f"{self.labels[i]!r}): its posterior reaches a bound, where the integral "
+                    "over the whole line is not the box's",
+                    conditions=[self.labels[k] for k in np.flatnonzero(out_box.any(axis=(1, 2)))],
+                    parameters=[n]))
         return out
+
+    def _divergences(self) -> list[ResultWarning]:
+        div = self.diverging.sum(axis=(1, 2))
+        if not div.sum():
+            return []
+        i = int(np.argmax(div))
+        return [ResultWarning(
+            WarningKind.DIVERGENCES,
+            f"posterior: {int(div.sum())} divergent transition(s) in "
+            f"{self._units(int(np.sum(div > 0)))} (most: {int(div[i])} on {self.labels[i]!r}): "
+            "the draws near a sharp or non-finite region may be biased",
+            conditions=[self.labels[k] for k in np.flatnonzero(div)])]
 
     def table(self, *, max_rows: int | None = None) -> str:
         """A readable fixed-width summary table, then the diagnostics line."""
@@ -336,7 +399,8 @@ class Posterior:
                "target_accept": None if s.target_accept is None else float(s.target_accept),
                "integrated_out": list(self.linear),
                "seed": self.seed, "prior": self.prior or "flat on the bounds",
-               "diagnostics": self.diagnostics(), "warnings": self.problems(),
+               "diagnostics": self.diagnostics(),
+               "warnings": [w.message for w in self.problems()],
                "timings_s": dict(self.timings), "conditions": units}
         return json_safe(doc)
 
@@ -387,8 +451,8 @@ class PosteriorFront:
         """A readable summary table with its diagnostics line."""
         return self.posterior.table(max_rows=max_rows)
 
-    def problems(self) -> list[str]:
-        """Convergence warning lines (see :meth:`Posterior.problems`)."""
+    def problems(self) -> list[ResultWarning]:
+        """Convergence warnings (see :meth:`Posterior.problems`)."""
         return self.posterior.problems()
 
     def to_csv(self) -> str:

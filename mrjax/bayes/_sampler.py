@@ -33,34 +33,17 @@ $\\rho \\in (-1, 1)$).
 from __future__ import annotations
 
 import dataclasses
-import sys
-import time
-from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ._noise import check_noise, log1m_tanh2
-from ._priors import box_slope, check_priors, prior_arrays, to_box
-from ._result import Posterior
-from ._start import (
-    GRADIENT_TOL,
-    Target,
-    Unit,
-    collapsible,
-    find_mode,
-    gradient_error,
-    laplace,
-    linear_draw,
-    log_density,
-    start,
-    to_log,
-)
+from ._noise import log1m_tanh2
+from ._priors import to_box
+from ._start import linear_draw, log_density
 
 #: Chains start at the mode plus this many starting standard deviations of noise (a start
 #: with a non-finite log-density falls back onto the mode).
@@ -70,6 +53,10 @@ DRAWS, CHAINS, WARMUP = 1000, 4, 500
 #: Default target acceptance rate of the step-size adaptation, by the model's kind (see
 #: `Sampler.target_accept`).
 TARGET_ACCEPT = {"static": 0.9, "dynamic": 0.8}
+#: Default further rounds for the units that missed convergence (see `Sampler.continuations`),
+#: and the highest target acceptance a continued unit that diverged is given.
+CONTINUATIONS = 2
+CONTINUED_TARGET = 0.95
 #: Draws whose linear unknowns (integrated out of the log-density) are drawn side by side.
 LINEAR_BATCH = 64
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
@@ -115,6 +102,13 @@ class Sampler(eqx.Module):
         swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its compilation 12.6 s
         against 5.9 s (`benchmarks/posterior.md`). With several CPU devices the chains of a
         unit are also spread over them (:func:`chain_devices`).
+    - `continuations`: at most this many further rounds for the units whose chains missed
+        R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged: round r runs those
+        units' chains again from the mode with 2^r x the warmup and 2^r x the draws, every
+        2^r-th kept (same shape, about 2^r x the effective draws), and a target acceptance
+        raised towards `CONTINUED_TARGET` where a unit diverged; what still misses is warned
+        about (`Posterior.rounds` says how many rounds each unit took). 0: no continuation.
+    - `thin`: keep every `thin`-th draw of `thin` x `draws` (the continuations set it).
     - `gradient`: how the residuals are differentiated: `"reverse"` or `"forward"` (their
         Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential integration,
         e.g. the dynamic models). `None` (default): `mrjax.posterior` chooses forward mode for
@@ -130,6 +124,8 @@ class Sampler(eqx.Module):
     dense_mass: bool = eqx.field(static=True, default=True)
     vectorize: bool | str | None = eqx.field(static=True, default=None)
     gradient: str | None = eqx.field(static=True, default=None)
+    continuations: int = eqx.field(static=True, default=CONTINUATIONS)
+    thin: int = eqx.field(static=True, default=1)
 
     def for_model(self, dynamic: bool) -> Sampler:
         """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
@@ -142,10 +138,26 @@ class Sampler(eqx.Module):
             target_accept=TARGET_ACCEPT[kind] if self.target_accept is None
             else self.target_accept)
 
+    def continued(self, round_: int, diverged: bool) -> Sampler:
+        """The settings of continuation round `round_` (>= 1): 2^r x the warmup, the same kept
+        draws thinned from 2^r x as many, the target acceptance raised halfway to
+        `CONTINUED_TARGET` per round where the unit diverged."""
+        f = 2 ** int(round_)
+        target = self.target_accept
+        if diverged and target is not None:
+            for _ in range(int(round_)):
+                target = max(target, 0.5 * (target + CONTINUED_TARGET))
+        return dataclasses.replace(self, warmup=self.warmup * f, thin=self.thin * f,
+                                   target_accept=target)
+
     def check(self) -> Sampler:
         """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
         (0, 1)."""
-        for name in ("draws", "chains", "warmup", "max_doublings"):
+        if isinstance(self.continuations, bool) or not isinstance(
+                self.continuations, (int, np.integer)) or self.continuations < 0:
+            raise InputError(f"continuations must be an integer >= 0, got "
+                             f"{self.continuations!r}")
+        for name in ("draws", "chains", "warmup", "max_doublings", "thin"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
@@ -161,11 +173,12 @@ class Sampler(eqx.Module):
 
 
 # ------------------------------------------------------------------------------ progress
-_BAR: list[Any] = [None]
+#: The progress bar of the running sample, advanced from inside the compiled program.
+BAR: list[Any] = [None]
 
 
 def _tick_host(n):
-    bar = _BAR[0]
+    bar = BAR[0]
     if bar is not None:
         bar.update(int(np.ravel(n)[0]))
 
@@ -215,18 +228,23 @@ def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
         _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
     kernel = blackjax.nuts(logdensity, **params)
 
-    def one(st, k):
+    def step(st, k):
         st, info = kernel.step(k, st)
-        out = (z0 + L @ st.position, st.logdensity, info.is_divergent,
-               info.num_integration_steps, info.acceptance_rate)
+        return st, (info.is_divergent, info.num_integration_steps, info.acceptance_rate)
+
+    def one(st, ks):  # `thin` steps, the last kept: divergences and steps over all of them
+        st, (div, n, acc) = jax.lax.scan(step, st, ks)
+        out = (z0 + L @ st.position, st.logdensity, jnp.any(div), jnp.sum(n), jnp.mean(acc))
         if per_step:
-            _tick(one_tick + 0 * info.num_integration_steps)
+            _tick(one_tick + 0 * n[-1])
         return st, out
 
-    last, trace = jax.lax.scan(one, state, jax.random.split(skey, sampler.draws))
+    keys = jax.random.split(skey, sampler.draws * sampler.thin)
+    last, trace = jax.lax.scan(one, state, keys.reshape(sampler.draws, sampler.thin,
+                                                        *keys.shape[1:]))
     if progress and not per_step:
         _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
-    return trace, params["step_size"], warm_steps
+    return trace, params["step_size"], jnp.sum(warm_steps)
 
 
 def chain_devices(sampler: Sampler) -> int:
@@ -242,7 +260,10 @@ def chain_devices(sampler: Sampler) -> int:
 
 
 @eqx.filter_jit
-def _run(target, prior, sampler, progress, units, z0, L, keys):
+def run_chains(target, prior, sampler, progress, units, z0, L, keys):
+    """Warmup and draws of every chain of every unit in one compiled program; the box map and
+    the noise transforms applied in it (draws in SI units). Returns `(theta, sigma, rho,
+    (lp, diverging, steps, accept), step_size, warmup_steps)`."""
     chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
     mode = vectorized(sampler)
     over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
@@ -288,220 +309,3 @@ def _run(target, prior, sampler, progress, units, z0, L, keys):
     return theta, jnp.exp(log_sigma), rho, trace[1:], step, warm
 
 
-# ------------------------------------------------------------------------------ entry point
-def sample(
-    residual: Callable,
-    theta0: ArrayLike,
-    data: Any,
-    *,
-    lower: ArrayLike,
-    upper: ArrayLike,
-    names: Sequence[str],
-    labels: Sequence[str] | None = None,
-    row_labels: Sequence[str] | None = None,
-    sampler: Sampler | None = None,
-    noise: str = "iid",
-    prior: Mapping[str, Any] | None = None,
-    key: Any = None,
-    seed: int = 0,
-    progress: bool | None = False,
-    unit_dim: str = "condition",
-    units: Sequence[str] | None = None,
-    gauge: Sequence[str] = (),
-    exact: Callable | None = None,
-    linear: Sequence[str] = (),
-) -> Posterior:
-    """Sample the posterior of a residual function's unknowns with NUTS, on every unit at once.
-
-    **Arguments:**
-
-    - `residual`: `residual(theta (K,), unit_data) -> ((r, mask), ...)`, a tuple of blocks of
-        residuals [N] and scored-sample masks, each (R_b, T_b) records by samples; jittable,
-        written for one unit (it is vmapped); hashable (an `eqx.Module` or a module-level
-        function, so that a second call reuses the compiled program).
-    - `theta0`: (U, K) the polished optimum of each unit, SI units: the chains start around it.
-    - `data`: pytree whose leaves have a leading unit axis U.
-    - `lower`, `upper`: (K,) or (U, K) the box of the unknowns (the fit's bounds), SI units;
-        a parameter with `lower == upper` everywhere is held fixed.
-    - `names`: (K,) the unknowns' names (the posterior's variables).
-    - `labels`: (U,) unit labels (coordinates of `unit_dim`); default `"0"`, `"1"`, ...
-    - `row_labels`: names of the R records of a unit (coordinates of `noise_sigma`'s `record`
-        dim where R > 1).
-    - `sampler`: :class:`Sampler` settings (draws, chains, warmup, ...).
-    - `noise`: `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`).
-    - `prior`: {name: prior} (see `mrjax.bayes.parse_prior`); default flat on the box.
-    - `key`: JAX PRNG key (default `jax.random.key(seed)`); each unit's chains use
-        `fold_in(key, unit index)`: same key, same draws.
-    - `progress`: a tqdm bar over warmup + draws (None: only on a TTY).
-    - `unit_dim`: the name of the unit dimension in the posterior (`"condition"`).
-    - `units`: (K,) SI units of the unknowns, for the tables.
-    - `gauge`: names of the unknowns to hold first where the data leave a direction
-        undetermined (see below), e.g. `("delta",)` for the Bouc-Wen models' z scale.
-    - `exact`: where `residual`'s derivatives are an approximation (the L-stable scheme's
-        implicit tangent), the same residual function with exact ones: the sampler checks
-        the approximation around the posterior's mode against central differences of the
-        log-density (:func:`mrjax.bayes._start.gradient_error`) and, where the whitened
-        gradient is off by more than `GRADIENT_TOL`, searches the mode again and samples with `exact`
-        (`Posterior.gradient_error`; modified Bouc-Wen on UTFSM test 25mm0x1Hz1A: up to
-        12,000, and its step size fell to 3e-5 with every tree at 1,023 steps; 0.007 on
-        10mm1Hz0x5A, which keeps the cheaper implicit tangent).
-    - `linear`: names of unknowns the residuals are affine in, with a regressor that no
-        unknown changes (a model's `fixed_params`, e.g. the force offset `f0`). Where their
-        prior is flat and the posterior's mode lies well inside their box in every unit
-        (:func:`mrjax.bayes._start.collapsible`, which also checks the regressor), the
-        log-density integrates them out in closed form (:func:`mrjax.bayes.linear_marginal`)
-        and each draw's are drawn from their Gaussian conditional: fewer dimensions for NUTS,
-        and no funnel of an offset against the AR(1) coefficient. The draws are those of the
-        same posterior. `Posterior.linear` names them.
-
-    The start is built from `theta0` and the Gauss-Newton covariance of the residuals there
-    (Jacobian by forward mode, on the likelihood's own data). Where that covariance spans more
-    than the box in some direction of the unknowns (a symmetry of the model, or an unknown
-    these records do not inform), one unknown per such direction is held at `theta0` in that
-    unit (its `lower == upper` in the result, listed by `Posterior.problems`): the others'
-    posterior is conditional on it. A damped Newton search (`_start.MODE_STEPS`) then moves the start
-    from `theta0`, the least-squares optimum of the fit's data, to the mode of this posterior
-    (the noise model, the prior and the soft box move it), and the chains start around the
-    mode with the inverse of the log-density's Hessian there as their mass matrix (modified
-    Bouc-Wen on a UTFSM view with AR(1) noise: the start was 670 log-density units below the
-    mode, and 150 warmup steps of one chain took 69,114 gradients from it, 3,090 from the
-    mode). `Posterior.timings["mode"]` is its time [s].
-
-    **Returns:** a :class:`mrjax.bayes.Posterior`.
-
-    Raises :class:`mrjax.InputError` for bad settings, an unknown noise model or prior, or
-    shapes that do not match.
-    """
-    # a gradient left None: reverse mode (mrjax.posterior has chosen for its model)
-    sampler = (sampler or Sampler()).check().for_model(False)
-    noise = check_noise(noise)
-    names = tuple(str(n) for n in names)
-    K = len(names)
-    theta0 = np.asarray(theta0, float)
-    if theta0.ndim != 2 or theta0.shape[1] != K:
-        raise InputError(f"theta0 must be (units, {K}), got shape {theta0.shape}")
-    U = theta0.shape[0]
-    lo = np.broadcast_to(np.asarray(lower, float), (U, K))
-    hi = np.broadcast_to(np.asarray(upper, float), (U, K))
-    if np.any(~np.isfinite(lo)) or np.any(~np.isfinite(hi)) or np.any(lo > hi):
-        raise InputError("the box of the unknowns must be finite with lower <= upper")
-    if not np.all(np.isfinite(theta0)):
-        raise InputError("the optimum theta0 must be finite")
-    priors = check_priors(prior, names)
-    kind, a, b, lo, hi = prior_arrays(priors, names, lo, hi)
-    theta0 = np.clip(theta0, lo, hi)
-    free = tuple(int(j) for j in np.flatnonzero(np.any(hi > lo, axis=0)))
-    if not free:
-        raise InputError("no free unknowns: every lower bound equals its upper bound")
-    labels = tuple(str(s) for s in labels) if labels is not None else tuple(map(str, range(U)))
-    if len(labels) != U:
-        raise InputError(f"{len(labels)} labels for {U} units")
-    shapes = jax.eval_shape(residual, jnp.asarray(theta0[0]),
-                            jax.tree.map(lambda x: x[0], data))
-    rows = tuple(int(s[0].shape[0]) for s in shapes)
-    st = start(residual, theta0, lo[:, free], hi[:, free], data, free, noise, names,
-               tuple(gauge))
-    lo, hi = lo.copy(), hi.copy()
-    lo[:, free], hi[:, free] = st.lo, st.hi
-    # an unknown held in every unit is no unknown of the sampler: neither a dimension nor a
-    # forward-mode tangent (modified Bouc-Wen: delta and gamma, 2 of 10)
-    Kf = len(free)
-    every = [k for k in range(Kf) if not st.held[:, k].all()]
-    keep = np.concatenate([every, np.arange(Kf, st.z0.shape[1])]).astype(int)
-    # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
-    # covariance: every w is O(1), so Stan's regularisation of the adapted mass matrix
-    # (towards 1e-3 I) does not swamp unknowns whose posterior spans 1e-4 of their box
-    z0, L = st.z0[:, keep], np.linalg.cholesky(st.imm[:, keep][:, :, keep])
-    prior_data = (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b))
-    start_z, start_L, start_st = z0, L, st
-    t0 = time.perf_counter()
-
-    def prepare(residual_fn):
-        """From the start: the mode (a damped Newton search: the polished optimum is the
-        least-squares one on the fit's data, not the mode of this posterior; the Hessian there
-        replaces the Gauss-Newton metric), then the log coordinates and the linear unknowns
-        integrated out, both decided there. Returns `(target, units, z0, L)`."""
-        st = start_st
-        t = Target(residual=residual_fn, free=tuple(free[k] for k in every), rows=rows,
-                   noise=noise, forward=sampler.gradient == "forward")
-
-        def arrays(moved, lin):
-            return Unit(data=data, lo=jnp.asarray(st.lo[:, moved]),
-                        hi=jnp.asarray(st.hi[:, moved]), soft=jnp.asarray(st.soft[:, moved]),
-                        log=jnp.asarray(st.log[:, moved]), theta=jnp.asarray(theta0),
-                        regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians),
-                        masks=tuple(jnp.asarray(m) for m in st.masks))
-
-        units_t = arrays(every, [])
-        z, m = laplace(*jax.device_get(find_mode(t, prior_data, units_t, jnp.asarray(start_z),
-                                                 jnp.asarray(start_L))), start_z, start_L)
-        Km = len(every)
-        cov = m @ np.swapaxes(m, 1, 2)
-        with np.errstate(invalid="ignore"):
-            sd_u = np.full((U, Kf), np.nan)
-            sd_u[:, every] = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)[:, :Km])
-        u_mode = np.zeros((U, Kf))
-        u_mode[:, every] = z[:, :Km]
-        centre = np.asarray(to_box(u_mode, st.lo, st.hi, st.soft, st.log))
-        sd = sd_u * box_slope(u_mode, st.lo, st.hi, st.soft, st.log)
-        # positive unknowns far above 0 at the mode: log coordinates from here
-        st, z, cov = to_log(st, z, cov, every, centre, sd)
-        # linear unknowns well inside their box at the mode: integrated out, the others'
-        # start the mode's (the marginal of its Gaussian approximation)
-        lin = collapsible(residual, theta0, data, free, st, kind,
-                          [names.index(n) for n in linear if n in names], centre, sd)
-        moved = [k for k in every if k not in lin]
-        keep = np.concatenate([[every.index(k) for k in moved],
-                               np.arange(Km, z.shape[1])]).astype(int)
-        t = dataclasses.replace(t, free=tuple(free[k] for k in moved),
-                                linear=tuple(free[k] for k in lin))
-        return (t, arrays(moved, lin), z[:, keep],
-                np.linalg.cholesky(cov[:, keep][:, :, keep]))
-
-    target, units_data, z0, L = prepare(residual)
-    grad_error = None
-    if exact is not None:  # an approximate derivative, kept where it is close around the mode
-        grad_error = float(gradient_error(target, prior_data, units_data, jnp.asarray(z0),
-                                          jnp.asarray(L)))
-        if not grad_error <= GRADIENT_TOL:
-            # all again from the start, exactly: the approximate gradient's "mode" may be far
-            # from the posterior's (UTFSM 25mm0x1Hz1A: from there, trees of 1,023 steps)
-            target, units_data, z0, L = prepare(exact)
-    t_mode = time.perf_counter() - t0
-    if key is None:
-        key = jax.random.key(int(seed))
-    keys = jax.vmap(lambda i: jax.random.split(jax.random.fold_in(key, i), sampler.chains))(
-        jnp.arange(U))
-    show = sys.stderr.isatty() if progress is None else bool(progress)
-    t0 = time.perf_counter()
-    bar = None
-    if show:
-        from tqdm.auto import tqdm  # imported here: only a shown bar needs it
-
-        total = (sampler.warmup + sampler.draws) * U * sampler.chains
-        bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
-                   leave=False, file=sys.stderr)
-        _BAR[0] = bar
-    try:
-        out = _run(target, prior_data, sampler, show, units_data, jnp.asarray(z0),
-                   jnp.asarray(L), keys)
-        out = jax.block_until_ready(out)
-    finally:
-        _BAR[0] = None
-        if bar is not None:
-            bar.close()
-    theta, sigma, rho, (lp, div, steps, acc), step_size, warm_steps = out
-    wall = time.perf_counter() - t0 + t_mode
-    desc = {n: p.describe() for n, p in priors.items()}
-    return Posterior(
-        names=names, labels=labels, row_labels=None if row_labels is None else
-        tuple(map(str, row_labels)), unit_dim=unit_dim,
-        theta=np.asarray(theta), sigma=np.asarray(sigma),
-        rho=None if rho is None else np.asarray(rho), lp=np.asarray(lp),
-        diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
-        accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
-        warmup_steps=np.asarray(warm_steps, int), gradient_error=grad_error,
-        linear=tuple(names[j] for j in target.linear),
-        theta0=theta0, lower=lo, upper=hi, free=np.isin(np.arange(K), free), noise=noise,
-        prior=desc, sampler=sampler, seed=int(seed), timings={"sample": wall, "mode": t_mode},
-        param_units=None if units is None else tuple(units))

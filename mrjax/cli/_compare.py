@@ -6,7 +6,8 @@ import argparse
 
 from .._errors import InputError
 from .._io import OutputDir, json_bytes
-from ..comparison import compare
+from ..comparison import HeldOut, compare
+from ..engine import Chunks, Polish, Swarm
 from ._common import data_spec, load_batch, load_batches, use_agg
 from ._parse import say
 
@@ -50,20 +51,21 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     exit code."""
     hold_out = parse_hold_out(args.hold_out) if args.hold_out is not None else None
     folds = parse_folds(args.folds) if args.folds is not None else None
-    fit_options = dict(method=args.method, restarts=args.restarts, n_particles=args.particles,
-                       max_generations=args.max_generations, polish_steps=args.polish_steps,
-                       transient=args.transient, swarm_dtype=args.swarm_dtype, progress=None,
-                       max_memory=args.memory, devices=args.devices,
-                       retry=not args.no_retry)
+    swarm = None if args.method == "lm" else Swarm(
+        n_particles=args.particles, max_generations=args.max_generations,
+        restarts=args.restarts, dtype=args.swarm_dtype)
+    polish = None if args.method == "pso" else Polish(max_steps=args.polish_steps,
+                                                      retry=not args.no_retry)
+    chunks = Chunks(max_memory=args.memory, devices=args.devices)
     spec = data_spec(args)
     if args.validate:
         batch, validate = load_batches([args.files, args.validate], spec)
     else:  # without data options, today's one-argument call (tests replace it)
         batch = load_batch(args.files) if spec is None else load_batch(args.files, spec)
         validate = None
-    result = compare(batch, models=args.models, validate=validate, hold_out=hold_out,
-                     folds=folds, generalize_methods=args.generalize, seed=args.seed, log=say,
-                     **fit_options)
+    held = HeldOut(data=validate, hold_out=hold_out, folds=folds, methods=args.generalize)
+    result = compare(batch, models=args.models, held_out=held, swarm=swarm, polish=polish,
+                     transient=args.transient, chunks=chunks, key=args.seed, log=say)
     files = {"compare.json": json_bytes(result.to_dict()),
              "compare.csv": result.to_csv().encode()}
     if not args.no_plots:

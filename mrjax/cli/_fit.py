@@ -12,7 +12,9 @@ from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir, json_bytes
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
-from ..data import Source, fit_mask
+from .._warnings import WarningKind
+from ..data import Source
+from ..engine import Chunks, Polish, Swarm
 from ..fitting import RUNTIME_BYTES, fit
 from ..generalize import GeneralizedModel, generalize, identify
 from ..models import get, source_of
@@ -56,6 +58,23 @@ def figures(result, batch, gm, rows=None) -> dict[str, bytes]:
     if result.method == "pso+lm":
         out["pso_vs_polish.png"] = png(rp.plot_pso_vs_polish(result))
     return out
+
+
+def fit_settings(args: argparse.Namespace) -> tuple[Swarm | None, Polish | None]:
+    """The swarm's and the polish's settings objects of `mrjax fit`'s (or `mrjax compare`'s)
+    options: `--method` says which stages run, `--swarm`, `--particles`, `--max-generations`,
+    `--generations`, `--restarts`, `--swarm-dtype` set the swarm's fields, `--no-retry` the
+    polish's."""
+    swarm = None
+    if args.method != "lm":
+        swarm = Swarm(mode=args.swarm, n_particles=args.particles, restarts=args.restarts,
+                      max_generations=args.max_generations if args.max_generations is not None
+                      else 200, generations=getattr(args, "generations", None),
+                      dtype=args.swarm_dtype)
+    polish = None
+    if args.method != "pso":
+        polish = Polish(retry=not getattr(args, "no_retry", False))
+    return swarm, polish
 
 
 def run(args: argparse.Namespace, out: OutputDir) -> int:
@@ -107,15 +126,11 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     how = args.method if args.method == "lm" else f"{args.method}, {args.swarm} swarm"
     say(f"fitting {model.name} on {C} condition{'s' if C != 1 else ''} ({how})...")
     journal = out.path / JOURNAL
-    result = fit(
-        model, data, method=args.method, swarm_mode=args.swarm, seed=args.seed,
-        n_particles=args.particles,
-        max_generations=args.max_generations if args.max_generations is not None else 200,
-        generations=args.generations, transient=args.transient, progress=None, bounds=bounds,
-        swarm_dtype=args.swarm_dtype, restarts=args.restarts, devices=args.devices,
-        max_memory=args.memory, chunk_size=args.chunk_size, journal=journal,
-        resume=args.resume, retry=not args.no_retry,
-    )
+    swarm, polish = fit_settings(args)
+    chunks = Chunks(max_memory=args.memory, size=args.chunk_size, journal=journal,
+                    resume=args.resume, devices=args.devices)
+    result = fit(model, data, swarm=swarm, polish=polish, key=args.seed, bounds=bounds,
+                 transient=args.transient, chunks=chunks, progress=None)
     batch, rows = data, None
     if streamed:  # the loops of an even sample of the tests
         rows = np.unique(np.linspace(0, C - 1, min(C, SAMPLE_TESTS)).round().astype(int))
@@ -123,14 +138,12 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     gm = None
     if args.generalize:
         say(f"fitting current-dependent laws ({args.generalize})...")
-        mask = fit_mask(batch, args.transient) if args.transient is not None else None
-        gm = generalize(result, batch, method=args.generalize, seed=args.seed, mask=mask,
+        gm = generalize(result, batch, method=args.generalize, key=args.seed,
                         degrees=args.degrees, laws=args.laws)
     tp, post_files = None, {}
     if post is not None:
-        tp, post_files = run_posterior(post, result, batch, bounds=bounds,
-                                       transient=args.transient, seed=args.seed,
-                                       plots=not args.no_plots, laws=gm)
+        tp, post_files = run_posterior(post, gm if gm is not None else result, batch,
+                                       key=args.seed, plots=not args.no_plots)
     files = {"fit.json": result.to_json(generalized=gm, posterior=tp).encode(),
              "fit.csv": result.to_csv().encode(), **post_files}
     if not args.no_plots:
@@ -144,8 +157,8 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         print()
         print(gm.summary())
         for w in result.warnings(gm):
-            if w["kind"] == "too_few_currents":
-                print(f"warning: {w['message']}")
+            if w.kind == WarningKind.TOO_FEW_CURRENTS:
+                print(f"warning: {w.message}")
     if tp is not None:
         print()
         print(tp.table(max_rows=args.max_rows))
@@ -239,11 +252,10 @@ def _run_identify(args, model, bounds, batch, out: OutputDir) -> int:
                          "and polish: leave --method and --swarm at their defaults")
     say(f"identifying {model.name} as laws of the command from {C} record"
         f"{'s' if C != 1 else ''} (lag: {args.lag})...")
+    swarm = Swarm(n_particles=args.particles, restarts=args.restarts,
+                  max_generations=args.generations or args.max_generations or 200)
     gm = identify(batch, model, lag=args.lag, degrees=args.degrees, laws=args.laws, bounds=bounds,
-                  transient=args.transient,
-                  seed=args.seed, n_particles=args.particles,
-                  max_generations=args.generations or args.max_generations or 200,
-                  restarts=args.restarts)
+                  transient=args.transient, swarm=swarm, key=args.seed)
     ev = gm.evaluate(batch)
     conds = [{"label": lab, "rms_N": float(r), "nrmse": float(n)}
              for lab, r, n in zip(batch.labels, ev["rms"], ev["nrmse"])]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -12,11 +13,25 @@ from ._parse import POSTERIOR_DEFAULTS as DEFAULTS
 from ._parse import say
 
 
-def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[str, Any] | None:
-    """The checked keyword arguments of `mrjax.posterior` from the command line, or None
-    without `--posterior`; `names` the model's parameters. Raises :class:`mrjax.InputError`
-    (before any fitting) for an impossible option or for one given without `--posterior`."""
-    from ..bayes import DATA_CHOICES, NOISE_MODELS, Sampler, check_priors
+@dataclasses.dataclass(frozen=True)
+class PosteriorRequest:
+    """What `mrjax fit --posterior` asks of `mrjax.posterior`: the `sampler` (a
+    `mrjax.Sampler`), the `noise` model, the `prior` ({name: prior} or None) and the
+    `likelihood_data` (None: the default for the model)."""
+
+    sampler: Any
+    noise: str
+    prior: dict[str, Any] | None
+    likelihood_data: str | None
+
+
+def posterior_settings(args: argparse.Namespace, names: Sequence[str]
+                       ) -> PosteriorRequest | None:
+    """The posterior's settings objects from the command line, or None without
+    `--posterior`; `names` the model's parameters. Raises :class:`mrjax.InputError` (before
+    any fitting) for an impossible option or for one given without `--posterior`."""
+    from ..bayes import NOISE_MODELS, Sampler, check_priors
+    from ..engine import DATA_CHOICES
 
     given = [f"--{k.replace('_', '-')}" for k in (*DEFAULTS, "posterior_data", "prior")
              if getattr(args, k, None) is not None]
@@ -26,7 +41,7 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[s
         return None
     kw = {k: (getattr(args, k) if getattr(args, k) is not None else v)
           for k, v in DEFAULTS.items()}
-    Sampler(draws=kw["draws"], chains=kw["chains"], warmup=kw["warmup"]).check()
+    sampler = Sampler(draws=kw["draws"], chains=kw["chains"], warmup=kw["warmup"]).check()
     if kw["noise"] not in NOISE_MODELS:
         raise InputError(f"--noise must be one of {', '.join(NOISE_MODELS)}, got "
                          f"{kw['noise']!r}")
@@ -42,43 +57,37 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]) -> dict[s
         if not sep or not name.strip():
             raise InputError(f"--prior expects NAME=KIND:A:B, got {item!r}")
         prior[name.strip()] = spec
-    kw.update(likelihood_data=args.posterior_data, prior=check_priors(prior, names) or None)
-    return kw
+    return PosteriorRequest(sampler=sampler, noise=kw["noise"],
+                            prior=check_priors(prior, names) or None,
+                            likelihood_data=args.posterior_data)
 
 
-def run_posterior(settings: dict[str, Any], result: Any, batch: Any, *, bounds: Any,
-                  transient: Any, seed: int, plots: bool, laws: Any = None
-                  ) -> tuple[Any, dict[str, bytes]]:
-    """The posterior of a per-test fit, or with `laws` (a `GeneralizedModel` of `--generalize`)
-    of its laws, and its files: `posterior.nc`, `posterior.csv` and (with `plots`) the
-    figures of `mrjax.report.posterior_figures` (laws: `mrjax.report.law_posterior_figures`)."""
-    from ..bayes import posterior
+def run_posterior(request: PosteriorRequest, fitted: Any, batch: Any, *, key: int,
+                  plots: bool) -> tuple[Any, dict[str, bytes]]:
+    """The posterior of `fitted` (a per-test fit, or the `GeneralizedModel` of
+    `--generalize`: its laws) and its files: `posterior.nc`, `posterior.csv` and (with
+    `plots`) the figures of `mrjax.report.posterior_figures` (laws:
+    `mrjax.report.law_posterior_figures`)."""
+    from ..engine import posterior
+    from ..generalize import GeneralizedModel
 
-    how = settings["likelihood_data"] or ("view" if result.model.dynamic else "record")
-    if laws is not None:
-        say(f"sampling the posterior of the laws ({settings['chains']} chains x "
-            f"{settings['draws']} draws, {settings['noise']} noise, {how})...")
-        kw = {k: v for k, v in settings.items() if k != "prior"}
-        lp = posterior(laws, batch, seed=seed, transient=transient, progress=None, **kw)
-        files = {"posterior.nc": lp.netcdf_bytes(), "posterior.csv": lp.to_csv().encode()}
-        if plots:
-            use_agg()
-            from .. import report as rp  # imported here: matplotlib only when figures are drawn
-
-            files.update(rp.law_posterior_figures(lp, lp.predict_band(batch)))
-        return lp, files
-    say(f"sampling the posterior ({settings['chains']} chains x {settings['draws']} draws, "
-        f"{settings['noise']} noise, {how})...")
-    tp = posterior(result, batch, seed=seed, bounds=bounds, transient=transient, progress=None,
-                   **settings)
-    files = {"posterior.nc": tp.netcdf_bytes(), "posterior.csv": tp.to_csv().encode()}
+    laws = isinstance(fitted, GeneralizedModel)
+    model = fitted.model
+    how = request.likelihood_data or ("view" if model.dynamic else "record")
+    s = request.sampler
+    say(f"sampling the posterior{' of the laws' if laws else ''} ({s.chains} chains x "
+        f"{s.draws} draws, {request.noise} noise, {how})...")
+    post = posterior(fitted, batch, sampler=s, noise=request.noise, prior=request.prior,
+                     key=key, likelihood_data=request.likelihood_data, progress=None)
+    files = {"posterior.nc": post.netcdf_bytes(), "posterior.csv": post.to_csv().encode()}
     if plots:
         use_agg()
         from .. import report as rp  # imported here: matplotlib only when figures are drawn
 
-        band = tp.predict_band(batch)
-        files.update(rp.posterior_figures(tp, band))
-    return tp, files
+        band = post.predict_band(batch)
+        figures = rp.law_posterior_figures if laws else rp.posterior_figures
+        files.update(figures(post, band))
+    return post, files
 
 
 def run_band(args: argparse.Namespace, out: Any) -> int:
@@ -93,8 +102,8 @@ def run_band(args: argparse.Namespace, out: Any) -> int:
     from .. import __version__
     from .._io import json_bytes
     from .._tables import format_table
-    from ..bayes import NOISE_RULE, law_band, predictive_band, read_draws, read_law_draws
-    from ..generalize import GeneralizedModel
+    from ..bayes import predictive_band, read_draws
+    from ..generalize import NOISE_RULE, GeneralizedModel, law_band, read_law_draws
     from ..models import from_source, get
     from ._common import data_spec, load_batch, read_fit_json, say_estimates
 

@@ -3,7 +3,8 @@ held-out validation of the current-dependent models, `mrjax.compare`.
 
 ```python
 import mrjax
-res = mrjax.compare("tests/", models="all", hold_out={"current": [0.25, 0.75]})
+res = mrjax.compare("tests/", models="all",
+                    held_out=mrjax.comparison.HeldOut(hold_out={"current": [0.25, 0.75]}))
 print(res.table())            # per model: NRMSE, summed AIC / BIC, wins, held-out NRMSE, time
 res.ranking                   # ('kwok', 'modified_bouc_wen', ...) by summed BIC
 res.summary(), res.to_dict(), res.to_csv(), res.figures()
@@ -15,9 +16,8 @@ noise variance. The package is named `comparison` so that the function `mrjax.co
 not hide a module.
 """
 
-from ._compare import FIT_OPTIONS as FIT_OPTIONS
 from ._compare import GENERALIZE_METHODS as GENERALIZE_METHODS
-from ._compare import GENERALIZE_OPTIONS as GENERALIZE_OPTIONS
+from ._compare import HeldOut as HeldOut
 from ._compare import compare as compare
 from ._criteria import information_criteria as information_criteria
 from ._criteria import n_free_parameters as n_free_parameters

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -11,6 +12,7 @@ from jaxtyping import ArrayLike
 
 from .._errors import InputError
 from ..data import Batch, as_batch, fit_mask, make_batch
+from ..engine import Chunks, Polish, Swarm, check_settings
 from ..fitting import FitResult, fit
 from ..generalize import generalize
 from ..models import AbstractModel, check_bounds, get, names
@@ -18,16 +20,44 @@ from ._criteria import information_criteria, n_free_parameters
 from ._folds import Plan, plan_validation
 from ._result import CompareResult
 
-#: Options of `mrjax.fit` that `compare` passes on (the same for every model).
-FIT_OPTIONS = ("method", "swarm", "polish", "swarm_mode", "transient", "n_particles",
-               "max_generations", "generations", "pso_params", "polish_steps", "polish_tol",
-               "uncertainty", "progress", "devices", "swarm_dtype", "swarm_view", "restarts",
-               "max_memory", "chunk_size", "retry")
-#: Options of `mrjax.generalize.generalize` that `compare` passes on.
-GENERALIZE_OPTIONS = ("degrees", "laws", "weighting", "swarm", "polish", "n_particles",
-                      "max_generations", "pso_params", "restarts", "polish_steps", "tol",
-                      "swarm_view", "uncertainty")
 GENERALIZE_METHODS = ("two-step", "joint")
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldOut:
+    """The held-out validation of `mrjax.compare`: which tests are held out, and how each
+    model's laws over the current are built on the others.
+
+    **Fields:** the held-out tests, with at most one of `data` (other tests: a batch or
+    file/directory path(s); the laws are built on all of the compared tests), `hold_out`
+    (`{"current": [0.25, 0.75]}`: the tests at those currents [A]) and `folds` (K folds over
+    the tests, a permutation seeded by the key; `"current"`: leave one current out); none of
+    them: leave one current out when every current is known and there are at least two, else
+    no held-out validation. `methods`: `"two-step"` and/or `"joint"` (default both; `()`: no
+    held-out validation). `laws`, `degrees`, `weighting`: the laws' forms and the two-step
+    weighting (`mrjax.generalize.generalize`); `swarm`, `polish`: the joint fit's settings.
+    """
+
+    data: Any = None
+    hold_out: Mapping[str, Sequence[float]] | None = None
+    folds: int | str | None = None
+    methods: str | Sequence[str] | None = GENERALIZE_METHODS
+    laws: Any = "auto"
+    degrees: Mapping[str, int] | int | None = None
+    weighting: str = "covariance"
+    swarm: Swarm | None = Swarm(max_generations=100)
+    polish: Polish | None = Polish(max_steps=100)
+
+    def generalize(self, result: FitResult, batch: Batch, method: str, key: Any):
+        """The laws of `result` on `batch` by `method` with these settings."""
+        return generalize(result, batch, method=method, laws=self.laws, degrees=self.degrees,
+                          weighting=self.weighting, swarm=self.swarm, polish=self.polish,
+                          key=key)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The settings for the record (compare.json's `options`)."""
+        return {"methods": list(_checked_methods(self.methods)), "laws": self.laws,
+                "degrees": self.degrees, "weighting": self.weighting}
 
 
 def _models(models: str | Sequence[Any]) -> dict[str, AbstractModel]:
@@ -48,13 +78,6 @@ def _models(models: str | Sequence[Any]) -> dict[str, AbstractModel]:
     if not out:
         raise InputError("no model to compare")
     return out
-
-
-def _checked_options(given: Mapping[str, Any], allowed: Sequence[str], what: str) -> dict:
-    unknown = sorted(set(given) - set(allowed))
-    if unknown:
-        raise InputError(f"unknown {what} option {unknown[0]!r}; allowed: {', '.join(allowed)}")
-    return dict(given)
 
 
 def _checked_methods(methods: str | Sequence[str] | None) -> tuple[str, ...]:
@@ -100,7 +123,7 @@ def _mask(batch: Batch, transient) -> Any:
 
 
 def _held_out(result: FitResult, batch: Batch, source: Batch, plan: Plan,
-              methods: tuple[str, ...], seed: int, transient, gen_options: dict) -> tuple:
+              methods: tuple[str, ...], key: Any, transient, held: HeldOut) -> tuple:
     """Scores (G, H) of the model's laws, generalized on each fold's training tests from the
     per-test fits of those tests (no refit), on the fold's held-out tests."""
     H = sum(f.test.size for f in plan.folds)
@@ -113,8 +136,7 @@ def _held_out(result: FitResult, batch: Batch, source: Batch, plan: Plan,
         sub = result.subset(fold.train)
         rows = slice(start, start + fold.test.size)
         for g, method in enumerate(methods):
-            gm = generalize(sub, train, method=method, seed=seed, mask=_mask(train, transient),
-                            **gen_options)
+            gm = held.generalize(sub, train, method, key)
             ev = gm.evaluate(test, mask=_mask(test, transient))
             rms[g, rows], nrmse[g, rows] = ev["rms"], ev["nrmse"]
         start += fold.test.size
@@ -125,15 +147,14 @@ def compare(
     data: Batch | str | Sequence[Any],
     *,
     models: str | Sequence[str] = "all",
-    validate: Batch | str | Sequence[Any] | None = None,
-    hold_out: Mapping[str, Sequence[float]] | None = None,
-    folds: int | str | None = None,
-    generalize_methods: str | Sequence[str] | None = GENERALIZE_METHODS,
-    generalize_options: Mapping[str, Any] | None = None,
+    held_out: HeldOut | None = HeldOut(),
+    swarm: Swarm | None = Swarm(),
+    polish: Polish | None = Polish(),
     bounds: Mapping[str, tuple[ArrayLike, ArrayLike]] | None = None,
-    seed: int = 0,
+    transient: float | str | None = None,
+    chunks: Chunks | None = None,
+    key: int = 0,
     log: Callable[[str], None] | None = None,
-    **fit_options: Any,
 ) -> CompareResult:
     """Fit every model to the same tests and compare them: per-test error and information
     criteria, a ranking, and how well each model's current-dependent version predicts tests
@@ -146,45 +167,30 @@ def compare(
     the ranking by summed BIC, the number of tests each model wins (lowest BIC), and the
     summed-AIC difference of the runner-up to the best (`CompareResult.margin_aic`).
 
-    **Held-out validation.** Each model's per-test fits of the training tests are generalized
-    over the current (`mrjax.generalize.generalize`, by every method in
-    `generalize_methods`) and the resulting laws are scored on the held-out tests
+    **Held-out validation** (:class:`HeldOut`). Each model's per-test fits of the training
+    tests are generalized over the current (`mrjax.generalize.generalize`, by every method of
+    `held_out.methods`) and the resulting laws are scored on the held-out tests
     (`GeneralizedModel.evaluate`). A per-test fit does not depend on the other tests, so every
     fold reuses the fits of its training tests (`FitResult.subset`) instead of fitting again:
     each model is fitted once, in one compiled program for all tests, and each fold's tests
     are padded to the full record length so that folds of equal size share the compiled
-    generalization. The held-out tests are, with at most one of:
-
-    - `validate`: other tests (a batch, or file/directory path(s)); the laws are built on all
-        of `data`;
-    - `hold_out={"current": [0.25, 0.75]}`: the tests at those currents [A];
-    - `folds=K`: K folds over the tests (a permutation seeded by `seed`); `folds="current"`:
-        leave one current out;
-    - none of them: leave one current out when every current is known and there are at
-        least two, else no held-out validation.
+    generalization.
 
     **Arguments:**
 
     - `data`: the tests (a `mrjax.data.Batch`, condition(s), or file/directory path(s)).
     - `models`: `"all"` (every model of `mrjax.models.names`), a list of names, places
         (`"path/to/file.py:Name"`) or model objects, or `"kwok,bouc_wen"`.
-    - `validate`, `hold_out`, `folds`: the held-out tests, see above.
-    - `generalize_methods`: `"two-step"` and/or `"joint"` (default both); `()` or None: no
-        held-out validation.
-    - `generalize_options`: keyword arguments of `generalize` (`degrees`, `laws`,
-        `weighting`, `n_particles`, `max_generations`, `pso_params`, `polish`,
-        `polish_steps`).
+    - `held_out`: a :class:`HeldOut` (default: leave one current out, two-step and joint
+        laws), or None: no held-out validation.
+    - `swarm`, `polish`, `transient`, `chunks`: the per-test fits' settings, the same for
+        every model (see `mrjax.fit`). With `transient`, the criteria and held-out scores use
+        the same scored samples as the fit.
     - `bounds`: model name -> `(lower, upper)` search bounds of that model (SI; as
         `mrjax.fit`); parameters fixed by equal bounds are not counted by the criteria.
-    - `seed`: seed of every fit, every joint generalization and the fold assignment; the same
-        seed gives the same result.
+    - `key`: integer seed of every fit, every joint generalization and the fold assignment;
+        the same seed gives the same result.
     - `log`: called with a progress line (str) before and after each model, or None.
-    - `**fit_options`: options of `mrjax.fit`, the same for every model (`method`,
-        `swarm_mode`, `transient`, `n_particles`, `max_generations`, `generations`,
-        `pso_params`, `polish_steps`, `uncertainty`, `progress`, `devices`, `swarm_dtype`,
-        `restarts`, `retry`, `max_memory`, `chunk_size`: each model's fit runs in chunks of
-        bounded memory; the defaults are `mrjax.fit`'s). With `transient`, the criteria and
-        held-out scores use the same scored samples as the fit.
 
     **Returns:** a :class:`CompareResult` (`.table()`, `.summary()`, `.ranking`,
     `.to_dict()`, `.to_csv()`, `.figures()`).
@@ -196,53 +202,62 @@ def compare(
     t_all = time.perf_counter()
     say = log if log is not None else (lambda msg: None)
     by_name = _models(models)
-    model_names = tuple(by_name)
-    if "key" in fit_options:
-        raise InputError("compare takes seed= (the same for every model), not key=")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
-    fit_options = _checked_options(fit_options, FIT_OPTIONS, "fit")
-    gen_options = _checked_options(generalize_options or {}, GENERALIZE_OPTIONS, "generalize")
-    methods = _checked_methods(generalize_methods)
+    if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or key < 0:
+        raise InputError(f"compare's key must be a non-negative integer seed, got {key!r}")
+    held = held_out if held_out is not None else HeldOut(methods=())
+    if not isinstance(held, HeldOut):
+        raise InputError(f"held_out must be a mrjax.comparison.HeldOut or None, got "
+                         f"{type(held).__name__}")
+    check_settings(swarm, polish, chunks)
+    methods = _checked_methods(held.methods)
     bounds = _checked_bounds(bounds, by_name)
     batch = as_batch(data)
-    source = as_batch(validate) if validate is not None else batch
-    plan = plan_validation(batch, validate=source if validate is not None else None,
-                           hold_out=hold_out, folds=folds, seed=seed, enabled=bool(methods))
+    source = as_batch(held.data) if held.data is not None else batch
+    plan = plan_validation(batch, validate=source if held.data is not None else None,
+                           hold_out=held.hold_out, folds=held.folds, seed=key,
+                           enabled=bool(methods))
     if not plan.folds:
         methods = ()
-    transient = fit_options.get("transient")
-    k = np.array([n_free_parameters(by_name[m], bounds.get(m)) + 1 for m in model_names])
-    C, M, G = batch.n_conditions, len(model_names), len(methods)
-    H = sum(f.test.size for f in plan.folds)
-    fits: dict[str, FitResult] = {}
-    ho_rms, ho_nrmse = np.full((G, M, H), np.nan), np.full((G, M, H), np.nan)
-    timings: dict[str, dict[str, float]] = {}
-    for i, name in enumerate(model_names):
-        say(f"[{i + 1}/{M}] {name}: fitting {C} test{'s' if C != 1 else ''}...")
+    fits, ho_rms, ho_nrmse, timings = {}, [], [], {}
+    M = len(by_name)
+    for i, (name, model) in enumerate(by_name.items()):
+        say(f"[{i + 1}/{M}] {name}: fitting {batch.n_conditions} test"
+            f"{'s' if batch.n_conditions != 1 else ''}...")
         t0 = time.perf_counter()
-        res = fit(by_name[name], batch, seed=seed, bounds=bounds.get(name), **fit_options)
+        res = fit(model, batch, swarm=swarm, polish=polish, key=key, bounds=bounds.get(name),
+                  transient=transient, chunks=chunks)
         t1 = time.perf_counter()
-        if G:
+        if methods:
             say(f"[{i + 1}/{M}] {name}: generalizing over {len(plan.folds)} "
                 f"fold{'s' if len(plan.folds) != 1 else ''} ({', '.join(methods)})...")
-            ho_rms[:, i], ho_nrmse[:, i] = _held_out(res, batch, source, plan, methods, seed,
-                                                     transient, gen_options)
+        r, n = _held_out(res, batch, source, plan, methods, key, transient, held)
         t2 = time.perf_counter()
-        fits[name] = res
-        timings[name] = {"fit": t1 - t0, "holdout": t2 - t1, "total": t2 - t0}
-        held = "".join(f", held-out {m} median {100 * np.nanmedian(ho_nrmse[g, i]):.2f} %"
-                       for g, m in enumerate(methods) if H)
+        fits[name], timings[name] = res, {"fit": t1 - t0, "holdout": t2 - t1, "total": t2 - t0}
+        ho_rms.append(r)
+        ho_nrmse.append(n)
+        held_txt = "".join(f", held-out {m} median {100 * np.nanmedian(n[g]):.2f} %"
+                           for g, m in enumerate(methods) if n.shape[1])
         say(f"[{i + 1}/{M}] {name}: done in {t2 - t0:.1f} s; median NRMSE "
-            f"{100 * np.nanmedian(res.nrmse):.2f} %{held}")
+            f"{100 * np.nanmedian(res.nrmse):.2f} %{held_txt}")
+    timings["all"] = {"total": time.perf_counter() - t_all}
+    options = {"swarm": swarm, "polish": polish, "transient": transient, "bounds": bounds,
+               "held_out": held.to_dict()}
+    return _result(fits, by_name, bounds, batch, source, plan, methods,
+                   np.moveaxis(np.stack(ho_rms), 0, 1), np.moveaxis(np.stack(ho_nrmse), 0, 1),
+                   timings, key, options)
+
+
+def _result(fits, by_name, bounds, batch, source, plan, methods, ho_rms, ho_nrmse, timings,
+            key, options) -> CompareResult:
+    """The :class:`CompareResult` of every model's fit and held-out scores (G, M, H)."""
+    model_names = tuple(by_name)
+    k = np.array([n_free_parameters(by_name[m], bounds.get(m)) + 1 for m in model_names])
     n = fits[model_names[0]].n_samples
     rms = np.stack([fits[m].rms for m in model_names])
     crit = information_criteria(n[None, :] * rms**2, n[None, :], k[:, None])
     order = np.concatenate([f.test for f in plan.folds]) if plan.folds else np.zeros(0, int)
     fold_of = np.concatenate([np.full(f.test.size, j) for j, f in enumerate(plan.folds)]) \
         if plan.folds else np.zeros(0, int)
-    options = dict(fit_options, generalize_options=gen_options, bounds=bounds)
-    timings["all"] = {"total": time.perf_counter() - t_all}
     return CompareResult(
         models=model_names, fits=fits, batch=batch, k=k, n_samples=np.asarray(n, int),
         rms=rms, nrmse=np.stack([fits[m].nrmse for m in model_names]), aic=crit["aic"],
@@ -259,4 +274,4 @@ def compare(
         holdout_fold=fold_of.astype(int),
         holdout_index=order.astype(int) if plan.scheme != "validate"
         else np.full(order.size, -1), holdout_rms=ho_rms, holdout_nrmse=ho_nrmse,
-        timings=timings, seed=int(seed), options=options)
+        timings=timings, seed=int(key), options=options)

@@ -10,8 +10,10 @@ from typing import Any, ClassVar
 import equinox as eqx
 import numpy as np
 
+from .._errors import InputError
+from ..bayes import Likelihood
 from ..pso import AbstractObjective, PSOParams
-from ..refine import FULL_TOL_FACTOR
+from ..refine import FULL_TOL_FACTOR, Status
 from ._settings import Swarm
 
 
@@ -90,7 +92,7 @@ class StageOutcome:
 
     name: str
     steps: np.ndarray
-    status: tuple[str, ...]
+    status: tuple[Status, ...]
     tol: float
     max_steps: int
     integration: Any = None
@@ -121,29 +123,29 @@ class Outcome:
         return self.stages[-1].steps if self.stages else np.zeros(self.z.shape[0], int)
 
     @property
-    def status(self) -> tuple[str, ...]:
+    def status(self) -> tuple[Status, ...]:
         """Per unit, the polish's outcome: `"refined"` where a view polish converged and the
         full records' refinement ran its few steps (or converged), else the first failure;
         the last stage's status for a one-stage polish; `"kept_start"` where the start was
         kept; `"none"` without polish."""
         U = self.z.shape[0]
         if not self.stages:
-            return ("none",) * U
+            return (Status.NONE,) * U
         if len(self.stages) == 1:
             out = self.stages[0].status
         else:
             out = tuple(refined(a, b) for a, b in zip(self.stages[0].status,
                                                        self.stages[-1].status))
-        return tuple("kept_start" if k else s for k, s in zip(self.kept_start, out))
+        return tuple(Status.KEPT_START if k else s for k, s in zip(self.kept_start, out))
 
 
-def refined(view_status: str, full_status: str) -> str:
-    """The status of a two-stage polish: `"refined"` where the view polish converged and the
+def refined(view_status: Status, full_status: Status) -> Status:
+    """The status of a two-stage polish: `REFINED` where the view polish converged and the
     full-record refinement ran its steps (or converged), else the first failure."""
-    if full_status in ("max_steps_reached", "successful", "kept_start") and \
-            view_status == "successful":
-        return "refined" if full_status != "kept_start" else "successful"
-    return full_status if full_status not in ("max_steps_reached", "successful") else view_status
+    done = (Status.MAX_STEPS_REACHED, Status.SUCCESSFUL)
+    if full_status in (*done, Status.KEPT_START) and view_status == Status.SUCCESSFUL:
+        return Status.REFINED if full_status != Status.KEPT_START else Status.SUCCESSFUL
+    return full_status if full_status not in done else view_status
 
 
 class AbstractProblem(abc.ABC):
@@ -156,7 +158,8 @@ class AbstractProblem(abc.ABC):
     the swarm's views or on the full records (:meth:`stage`), its score on the full records
     (:meth:`score`) and its uncertainty (:meth:`uncertainty`); the engine runs
     view -> swarm -> view polish -> full-record polish -> uncertainty once for every kind, and
-    the caller assembles its result from the :class:`Outcome`.
+    the caller assembles its result from the :class:`Outcome`; its posterior samples the
+    residuals of :meth:`likelihood` (`mrjax.engine.sample`).
 
     **Polish plan** (class attributes): with a view, the view stage stops at
     `view_tol_factor` x `Polish.tol` and the full records are refined to `refine_tol_factor`
@@ -218,3 +221,9 @@ class AbstractProblem(abc.ABC):
     @abc.abstractmethod
     def uncertainty(self, z: np.ndarray) -> Any:
         """The linearised uncertainty at `z`."""
+
+    def likelihood(self, z: np.ndarray, on_view: bool) -> Likelihood:
+        """What the posterior samples (`mrjax.bayes.Likelihood`): the residuals the polish
+        minimises, as blocks of records, on the records' views or on the records, from the
+        optimum `z` (U, K). A kind without a posterior raises :class:`mrjax.InputError`."""
+        raise InputError(f"{type(self).__name__} has no posterior")

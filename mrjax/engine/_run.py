@@ -11,7 +11,7 @@ import numpy as np
 
 from .._errors import InputError
 from .._runtime import release_code
-from ..refine import solve_box, status_name
+from ..refine import Status, solve_box, status_name
 from ._problem import AbstractProblem, Outcome, StageOutcome
 from ._settings import Polish, Swarm
 from ._swarm import run_swarm
@@ -90,7 +90,7 @@ def solve(
                             max_steps=steps, tol=tol, free=spec.free, jacobian=spec.jacobian,
                             scaled=spec.scaled, snap=spec.snap, page_size=spec.page_size)
             z = np.asarray(sol.z)
-            status = tuple("kept_start" if k else status_name(c)
+            status = tuple(Status.KEPT_START if k else status_name(c)
                            for k, c in zip(np.asarray(sol.kept), np.asarray(sol.status)))
             stages.append(StageOutcome(name, np.asarray(sol.steps), status, tol, steps,
                                        spec.integration))

@@ -1,10 +1,13 @@
-"""The settings of an identification, as objects (the optimistix way): :class:`Swarm` and
-:class:`Polish`, and the one place where the keyword options of `mrjax.fit`,
-`mrjax.generalize.generalize` and `mrjax.generalize.identify` become them."""
+"""The settings of an identification, as objects (the optimistix way): :class:`Swarm`,
+:class:`Polish` and :class:`Chunks`. `mrjax.fit`, `mrjax.generalize.generalize`,
+`mrjax.generalize.identify`, `mrjax.compare` and the command line all pass these objects; the
+posterior's settings are `mrjax.Sampler`."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Literal
 
 import equinox as eqx
@@ -14,8 +17,7 @@ from ..pso import PSOParams
 from ..refine import DEFAULT_TOL
 
 SwarmMode = Literal["separable", "full"]
-Method = Literal["pso", "pso+lm", "lm"]
-METHODS: tuple[str, ...] = ("pso", "pso+lm", "lm")
+#: The swarm's modes (see :class:`Swarm`).
 MODES: tuple[str, ...] = ("separable", "full")
 
 
@@ -41,7 +43,11 @@ class Swarm(eqx.Module):
         model's command laws, at least 100 generations).
     - `view`: score the swarm (and a first polish) on each record's view
         (`mrjax.data.swarm_view`), then polish on the full records; None: for the ODE models.
-    - `dtype`: float dtype of the search (e.g. `"float32"`), or None for the default float.
+    - `dtype`: float dtype of the search (e.g. `"float32"`: about twice as fast on a CPU; the
+        best positions are re-scored, polished and reported in float64), or None for the
+        default float.
+    - `callback`: a host function `callback(generation (R,), done (R,), best (R,) [N])` called
+        after every generation with the swarm rows' state (see `mrjax.pso.swarm`), or None.
 
     ```python
     mrjax.fit("modified_bouc_wen", data, swarm=mrjax.Swarm(restarts=2))
@@ -56,8 +62,11 @@ class Swarm(eqx.Module):
     params: PSOParams | None = None
     view: bool | None = eqx.field(static=True, default=None)
     dtype: Any = eqx.field(static=True, default=None)
+    callback: Callable | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        if self.callback is not None and not callable(self.callback):
+            raise InputError(f"swarm callback must be callable, got {self.callback!r}")
         for name in ("n_particles", "max_generations", "restarts"):
             v = getattr(self, name)
             if v is None and name == "restarts":
@@ -94,6 +103,7 @@ class Polish(eqx.Module):
         `mrjax.refine.lm_solve`; default 1e-6). A first polish on the swarm's views stops at a
         multiple of it and the full records are refined (see `mrjax.engine.solve`).
     - `uncertainty`: std-errors, intervals and identifiability at the result (default True).
+        Without a polish (`polish=None`) the std-errors are computed at the swarm's best.
     - `retry`: per-test fits only: after the polish, polish every test once more from the best
         of its neighbours' optima (`mrjax.fitting.retry_starts`: the optima of the tests
         nearest in current, frequency and amplitude, their linear parameters solved on the
@@ -117,59 +127,58 @@ class Polish(eqx.Module):
             raise InputError(f"polish tol must be a positive number, got {self.tol!r}")
 
 
-def _replace(obj: eqx.Module, **changes: Any) -> eqx.Module:
-    """`obj` with the fields in `changes` that are not None replaced (checks rerun)."""
-    changes = {k: v for k, v in changes.items() if v is not None}
-    if not changes:
-        return obj
-    fields = {k: getattr(obj, k) for k in obj.__dataclass_fields__}
-    fields.update(changes)
-    return type(obj)(**fields)
+class Chunks(eqx.Module):
+    """How a per-test fit is split and placed (`mrjax.fit`): the condition axis in chunks of
+    bounded memory, a journal to resume from, the devices. None of these changes a result.
 
+    **Fields:**
 
-def settings(
-    *,
-    method: str | None = "pso+lm",
-    swarm: Swarm | None = None,
-    polish: Polish | bool | None = None,
-    swarm_default: Swarm | None = None,
-    polish_default: Polish | None = None,
-    **keywords: Any,
-) -> tuple[Swarm | None, Polish | None, bool]:
-    """The one mapping of keyword options onto settings objects.
+    - `max_memory`: memory budget of the fit [bytes], or text such as `"8GB"`, `"512MB"`. The
+        conditions are fitted in chunks whose estimated working set fits it, every chunk with
+        the same shape (one compiled program) and each condition with its own random stream,
+        so the result does not depend on the chunking (see `mrjax.fitting.ChunkPlan`). None
+        (default): the memory the process holds plus half of what is available.
+    - `size`: conditions per chunk instead of a budget (raised to the smallest chunk that keeps
+        the result independent of the chunking, a multiple of the device count; see
+        `mrjax.fitting.plan_chunks`).
+    - `journal`: a directory where each finished chunk is written (atomically) when the fit has
+        more than one chunk; with `resume` the chunks it holds are reused after checking that
+        they were written for the same data and settings (`mrjax.fitting.Journal`).
+    - `resume`: see `journal`.
+    - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
+        `jax.Device` (None: one device); see `mrjax.parallel`. Same key, same result.
 
-    **Arguments:** `method` `"pso+lm"` (swarm then polish), `"pso"` (no polish; std-errors
-    still where `uncertainty`), `"lm"` (polish alone from the problem's neutral start);
-    `swarm`, `polish` settings objects (`polish=False`: no polish, `True`: the default); the
-    defaults of the caller; keywords: `n_particles`, `max_generations`, `generations`,
-    `restarts`, `swarm_mode`, `pso_params`, `swarm_view`, `swarm_dtype` (onto :class:`Swarm`),
-    `polish_steps`, `polish_tol`/`tol`, `uncertainty`, `retry` (onto :class:`Polish`); None
-    leaves the object's value.
-
-    **Returns:** `(swarm or None, polish or None, uncertainty)`: None where the stage does not
-    run. Raises :class:`mrjax.InputError` for an unknown method or a bad value.
+    ```python
+    mrjax.fit("kwok", "tests/", chunks=mrjax.Chunks(max_memory="4GB", journal="journal/"))
+    ```
     """
-    if method not in METHODS:
-        raise InputError(f"method must be 'pso', 'pso+lm' or 'lm', got {method!r}")
-    unknown = set(keywords) - _KEYWORDS
-    if unknown:
-        raise InputError(f"unknown option(s): {sorted(unknown)}")
-    k = keywords
-    sw = swarm if swarm is not None else (swarm_default or Swarm())
-    if not isinstance(sw, Swarm):
-        raise InputError(f"swarm must be a mrjax.Swarm, got {type(sw).__name__}")
-    sw = _replace(sw, n_particles=k.get("n_particles"), max_generations=k.get("max_generations"),
-                  generations=k.get("generations"), restarts=k.get("restarts"),
-                  mode=k.get("swarm_mode"), params=k.get("pso_params"), view=k.get("swarm_view"),
-                  dtype=k.get("swarm_dtype"))
-    run_polish = polish is not False and method != "pso"
-    po = polish if isinstance(polish, Polish) else (polish_default or Polish())
-    tol = k.get("polish_tol", k.get("tol"))
-    po = _replace(po, max_steps=k.get("polish_steps"), tol=tol, uncertainty=k.get("uncertainty"),
-                  retry=k.get("retry"))
-    return (None if method == "lm" else sw), (po if run_polish else None), po.uncertainty
+
+    max_memory: int | float | str | None = eqx.field(static=True, default=None)
+    size: int | None = eqx.field(static=True, default=None)
+    journal: str | Path | None = eqx.field(static=True, default=None)
+    resume: bool = eqx.field(static=True, default=False)
+    devices: Any = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if not isinstance(self.resume, bool):
+            raise InputError(f"chunks resume must be True or False, got {self.resume!r}")
+        if self.resume and self.journal is None:
+            raise InputError("resume needs a journal directory (Chunks(journal=..., resume=True))")
+        v = self.size
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v
+                              or v < 1):
+            raise InputError(f"chunk size must be an integer >= 1, got {v!r}")
 
 
-_KEYWORDS = frozenset({"n_particles", "max_generations", "generations", "restarts", "swarm_mode",
-                       "pso_params", "swarm_view", "swarm_dtype", "polish_steps", "polish_tol",
-                       "tol", "uncertainty", "retry"})
+def check_settings(swarm: Any, polish: Any, chunks: Any = None
+                   ) -> tuple[Swarm | None, Polish | None]:
+    """`(swarm, polish)` checked: each a settings object of its kind or None (the stage does
+    not run), and at least one of them. Raises :class:`mrjax.InputError` otherwise."""
+    for name, v, kind in (("swarm", swarm, Swarm), ("polish", polish, Polish),
+                          ("chunks", chunks, Chunks)):
+        if v is not None and not isinstance(v, kind):
+            raise InputError(f"{name} must be a mrjax.{kind.__name__} or None, got "
+                             f"{type(v).__name__}")
+    if swarm is None and polish is None:
+        raise InputError("nothing to run: give a swarm, a polish or both")
+    return swarm, polish

@@ -30,6 +30,8 @@ from ._plan import condition_bytes as condition_bytes
 from ._plan import default_budget as default_budget
 from ._plan import parse_memory as parse_memory
 from ._plan import plan_chunks as plan_chunks
+from ._posterior import TestPosterior as TestPosterior
+from ._posterior import posterior_plan as posterior_plan
 from ._problem import AUTO_SWARMS as AUTO_SWARMS
 from ._problem import ModelSwarm as ModelSwarm
 from ._problem import TestsProblem as TestsProblem

@@ -52,19 +52,20 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import os
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from .._errors import InputError
 from ..data import Batch, Source, as_batch
-from ..engine import Polish, Swarm, row_keys, solve
+from ..engine import Chunks, Polish, Swarm, row_keys, solve
 from ..models import AbstractModel, get
 from ..objective import nrmse
 from ..parallel import pad_conditions, resolve_devices, take_conditions
+from ..refine import Status
 from ._journal import Journal, fingerprint
 from ._plan import (
     MIN_CHUNK_ELEMENTS,
@@ -82,15 +83,7 @@ from ._plan import (
 from ._problem import TestsProblem
 from ._result import FitResult
 from ._retry import merge, neighbours, retry_starts
-from ._run import (
-    Run,
-    fit_chunk,
-    make_run,
-    problem_of,
-    resolve_run,
-    uncertainty_fields,
-    wants_retry,
-)
+from ._run import Run, fit_chunk, make_run, problem_of, uncertainty_fields, wants_retry
 
 
 def _bar(enabled: bool | None, plan: ChunkPlan):
@@ -112,12 +105,12 @@ CHECK_BYTES = 256_000_000
 READ_BATCHES = 3
 
 
-def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
-          chunk_size: int | None, *, n_conditions: int | None = None,
+def _plan(whole: TestsProblem, run: Run, n_dev: int, *, n_conditions: int | None = None,
           resident: int | None = None, extra_per_condition: int = 0) -> ChunkPlan:
     """The chunks of a fit whose whole batch is the problem `whole` (a streamed fit: a
     problem of a few of its tests, with the whole's `n_conditions`, `resident` bytes and the
-    reading's `extra_per_condition` bytes)."""
+    reading's `extra_per_condition` bytes), by `run.chunks`' budget or size."""
+    max_memory, chunk_size = run.chunks.max_memory, run.chunks.size
     budget = None if max_memory is None else parse_memory(max_memory)
     sw = run.swarm
     k = sw.n_restarts if sw is not None else 1
@@ -137,88 +130,101 @@ def _plan(whole: TestsProblem, run: Run, n_dev: int, max_memory: Any,
     return plan_chunks(C, budget=budget, size=chunk_size, **shape)
 
 
-def chunk_plan(model: str | AbstractModel, data: Any, *, method: str = "pso+lm",
-               swarm: Swarm | None = None, polish: Polish | None = None,
-               bounds: Any = None, transient: Any = None, devices: Any = None,
-               max_memory: Any = None, chunk_size: int | None = None, seed: int = 0,
-               key: Any = None, progress: bool | None = False, callback: Any = None,
-               journal: Any = None, resume: bool = False, **keywords: Any) -> ChunkPlan:
+def chunk_plan(model: str | AbstractModel, data: Any, *, swarm: Swarm | None = Swarm(),
+               polish: Polish | None = Polish(), bounds: Any = None, transient: Any = None,
+               chunks: Chunks | None = None) -> ChunkPlan:
     """The chunks `mrjax.fit(model, data, ...)` would run with the same arguments (without
-    fitting): e.g. `chunk_plan("kwok", batch, max_memory="8GB").n_chunks`. `seed`, `key`,
-    `progress`, `callback`, `journal` and `resume` do not change the plan. Raises what
-    `mrjax.fit` raises for bad options or data, or a budget too small."""
-    run = make_run(method=method, swarm=swarm, polish=polish, key=None, seed=seed,
-                   bounds=bounds, transient=transient, devices=None, progress=False,
-                   callback=None, **keywords)
+    fitting): e.g. `chunk_plan("kwok", batch, chunks=mrjax.Chunks(max_memory="8GB")).n_chunks`.
+    Raises what `mrjax.fit` raises for bad settings or data, or a budget too small."""
     model, data = get(model), as_batch(data)
-    run = resolve_run(run, model, data.n_conditions)
-    whole = problem_of(model, data, run)
-    n_dev = 1 if devices is None else len(resolve_devices(devices))
-    return _plan(whole, run, n_dev, max_memory, chunk_size)
+    run = make_run(model, data.n_conditions, swarm=swarm, polish=polish, key=0, bounds=bounds,
+                   transient=transient, chunks=chunks)
+    return _plan(problem_of(model, data, run, devices=None), run, _device_count(run))
 
 
-def fit_in_chunks(
-    model: AbstractModel,
-    data: Batch | Source,
-    run: Run,
-    *,
-    max_memory: Any = None,
-    chunk_size: int | None = None,
-    journal: str | os.PathLike | None = None,
-    resume: bool = False,
-) -> FitResult:
-    """`mrjax.fit` in chunks (see the module docstring): `run` the settings of the fit, and
-    the chunking options `max_memory`, `chunk_size`, `journal`, `resume` of `mrjax.fit`.
-    `data`: a batch, or a `mrjax.data.Source` (streamed from its files unless it holds its
-    tests)."""
-    t0 = time.perf_counter()
-    if resume and journal is None:
-        raise InputError("resume needs a journal directory (journal=...)")
-    run = resolve_run(run, model, data.n_conditions)
-    retry = wants_retry(run, model, data.n_conditions)
-    unc = run.uncertainty
-    if retry:  # std-errors once, at the better of the two starts
-        run = dataclasses.replace(run, uncertainty=False)
-    k = run.swarm.n_restarts if run.swarm is not None else 1
-    n_dev = 1 if run.devices is None else len(resolve_devices(run.devices))
-    # one stream per swarm row, split once for the whole batch (from the seed without a key)
-    key = int(run.seed) if run.key is None else run.key
-    if isinstance(data, Source) and not data.kept:
-        whole, plan, view_length, take, digest = _streamed(model, data, run, n_dev, max_memory,
-                                                           chunk_size)
-        C = data.n_conditions
-        keys = row_keys(key, k * C)
-    else:
-        if isinstance(data, Source):
-            data = data.batch()
-        # the whole batch checked once, before any work (errors and warnings name its
-        # conditions)
-        whole = problem_of(model, data, dataclasses.replace(run, devices=None))
-        C, digest = whole.n_real, ""
-        keys = row_keys(key, k * C)
-        plan = _plan(whole, run, n_dev, max_memory, chunk_size)
-        view_length = whole.view.batch.length if whole.view is not None else None
+def _device_count(run: Run) -> int:
+    return 1 if run.devices is None else len(resolve_devices(run.devices))
 
-        def take(rows):
-            return take_conditions(whole.source, rows)[0]
-    jr = None
-    if journal is not None and (resume or plan.n_chunks > 1):  # one chunk: nothing to resume
-        fp = fingerprint(whole, run, keys) + digest
-        jr = Journal.open(journal, fp, plan, resume=bool(resume))
-        plan = jr.plan
-        if plan.size % n_dev:
-            raise InputError(f"cannot resume: the journal's chunks of {plan.size} conditions "
-                             f"do not divide over {n_dev} devices")
-    done = jr.finished(whole.model) if jr is not None else {}
-    rows_keys = keys.reshape(k, C, 2)
-    parts: list[FitResult] = []
 
-    def chunk_of(j: int):
-        start, stop = plan.bounds(j)
+@dataclasses.dataclass(frozen=True, eq=False)
+class Chunked:
+    """A per-test fit laid out in chunks (:func:`layout`): `whole` the problem of the whole
+    batch (of its first tests, streamed), `plan` the chunks, `keys` (k, C, 2) every swarm row's
+    key, `view_length` the swarm views' length of the whole, `take(rows) -> Batch` the reader
+    of a chunk's tests, `digest` the SHA-256 of a streamed fit's tests ("" otherwise)."""
+
+    whole: TestsProblem
+    plan: ChunkPlan
+    keys: np.ndarray
+    view_length: int | None
+    take: Callable
+    digest: str = ""
+
+    def chunk(self, j: int) -> tuple[Batch, np.ndarray, int]:
+        """Chunk `j`: its batch padded to the plan's size, the rows (padded rows repeat the
+        last), and its real conditions."""
+        start, stop = self.plan.bounds(j)
         rows = np.arange(start, stop)
-        chunk, _, n = pad_conditions(take(rows), None, plan.size)
-        return chunk, np.concatenate([rows, np.full(plan.size - n, rows[-1])]), n
+        chunk, _, n = pad_conditions(self.take(rows), None, self.plan.size)
+        return chunk, np.concatenate([rows, np.full(self.plan.size - n, rows[-1])]), n
 
+    def chunk_keys(self, padded: np.ndarray) -> np.ndarray:
+        """The swarm rows' keys of a chunk's (padded) rows."""
+        k = self.keys.shape[0]
+        return self.keys[:, padded].reshape(k * padded.size, 2)
+
+    def problem(self, j: int, run: Run) -> tuple[TestsProblem, np.ndarray, int]:
+        """The per-test problem of chunk `j`, its padded rows and its real conditions."""
+        chunk, padded, n = self.chunk(j)
+        return (problem_of(self.whole.model, chunk, run, view_length=self.view_length,
+                           checked=True), padded, n)
+
+
+def layout(model: AbstractModel, data: Batch | Source, run: Run, key: Any) -> Chunked:
+    """The chunks of a fit (see the module docstring): the whole batch checked once before
+    any work (errors and warnings name its conditions), the plan, one stream per swarm row
+    split once for the whole batch."""
+    k = run.swarm.n_restarts if run.swarm is not None else 1
+    n_dev = _device_count(run)
+    if isinstance(data, Source) and not data.kept:
+        return _streamed(model, data, run, n_dev, key)
+    if isinstance(data, Source):
+        data = data.batch()
+    whole = problem_of(model, data, run, devices=None)
+    plan = _plan(whole, run, n_dev)
+    keys = row_keys(key, k * whole.n_real).reshape(k, whole.n_real, 2)
+    view_length = whole.view.batch.length if whole.view is not None else None
+    return Chunked(whole, plan, keys, view_length,
+                   lambda rows: take_conditions(whole.source, rows)[0])
+
+
+def _journal(chunked: Chunked, run: Run) -> tuple[Journal | None, Chunked]:
+    """The journal of a fit with more than one chunk (or asked to resume), and the layout with
+    the journal's plan."""
+    ch = run.chunks
+    if ch.journal is None or not (ch.resume or chunked.plan.n_chunks > 1):
+        return None, chunked
+    fp = fingerprint(chunked.whole, run, chunked.keys.reshape(-1, 2)) + chunked.digest
+    jr = Journal.open(ch.journal, fp, chunked.plan, resume=bool(ch.resume))
+    n_dev = _device_count(run)
+    if jr.plan.size % n_dev:
+        raise InputError(f"cannot resume: the journal's chunks of {jr.plan.size} conditions "
+                         f"do not divide over {n_dev} devices")
+    return jr, dataclasses.replace(chunked, plan=jr.plan)
+
+
+def fit_in_chunks(model: AbstractModel, data: Batch | Source, run: Run, key: Any
+                  ) -> FitResult:
+    """`mrjax.fit` in chunks (see the module docstring): `run` the settings of the fit, `key`
+    its seed or PRNG key; `data` a batch, or a `mrjax.data.Source` (streamed from its files
+    unless it holds its tests)."""
+    t0 = time.perf_counter()
+    retry = wants_retry(run, model, data.n_conditions)
+    chunked = layout(model, data, run, key)
+    jr, chunked = _journal(chunked, run)
+    plan = chunked.plan
+    done = jr.finished(chunked.whole.model) if jr is not None else {}
+    parts: list[FitResult] = []
     bar = _bar(run.progress, plan)
     try:
         if bar is not None and done:
@@ -227,11 +233,11 @@ def fit_in_chunks(
             if j in done:
                 parts.append(done[j])
                 continue
-            chunk, padded, n = chunk_of(j)
-            chunk_keys = rows_keys[:, padded].reshape(k * plan.size, 2)
-            chunk_run = dataclasses.replace(run, key=chunk_keys)
-            res = fit_chunk(whole.model, chunk, chunk_run, view_length=view_length,
-                            checked=True)
+            chunk, padded, n = chunked.chunk(j)
+            # std-errors once, after the retry, at the better of the two starts
+            res = fit_chunk(chunked.whole.model, chunk, run, chunked.chunk_keys(padded),
+                            uncertainty=run.uncertainty and not retry,
+                            view_length=chunked.view_length, checked=True)
             res = res.subset(np.arange(n)) if res.n_conditions != n else res
             if jr is not None:
                 jr.record(j, res)
@@ -246,31 +252,30 @@ def fit_in_chunks(
     timings = dict(result.timings)
     if retry:
         t1 = time.perf_counter()
-        result = _retry(result, run, whole.model, chunk_of, plan.n_chunks, view_length)
+        result = _retry(result, run, chunked)
         timings["retry"] = time.perf_counter() - t1
-        if unc:
+        if run.uncertainty:
             t2 = time.perf_counter()
-            result = _uncertainty(result, run, whole.model, chunk_of, plan.n_chunks,
-                                  view_length)
+            result = _uncertainty(result, run, chunked)
             timings["uncertainty"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     return dataclasses.replace(result, timings=timings)
 
 
-def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, max_memory: Any,
-              chunk_size: int | None) -> tuple[TestsProblem, ChunkPlan, int | None, Any, str]:
-    """A streamed fit's check pass (see the module docstring): `(a problem of its first tests
-    for the plan and the journal, the plan, the view length of the whole, the chunk reader,
-    the SHA-256 of every test read)`."""
+def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, key: Any
+              ) -> Chunked:
+    """A streamed fit's check pass (see the module docstring): its layout, with a problem of
+    its first tests for the plan and the journal, the view length of the whole, the chunk
+    reader and the SHA-256 of every test read."""
     C, T = source.n_conditions, source.length
     per_test = max(1, source.batch_bytes(1))
+    max_memory = run.chunks.max_memory
     budget = CHECK_BYTES if max_memory is None else min(CHECK_BYTES, parse_memory(max_memory) // 4)
     group = max(1, budget // (READ_BATCHES * per_test))
-    nodev = dataclasses.replace(run, devices=None)
     view_length, h = 0, hashlib.sha256()
     for start in range(0, C, group):
         batch = source.batch(np.arange(start, min(C, start + group)), length=T)
-        p = problem_of(model, batch, nodev)  # the checks of the whole, a group at a time
+        p = problem_of(model, batch, run, devices=None)  # the checks of the whole, by groups
         if p.view is not None:
             view_length = max(view_length, p.view.batch.length)
         for i in range(batch.n_conditions):  # per test: the same digest however grouped
@@ -280,28 +285,26 @@ def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, max_me
                 h.update(np.asarray(getattr(batch, name)[i]).tobytes())
     view = view_length or None
     first = source.batch(np.arange(min(C, MIN_ROWS)), length=T, warn=False)
-    probe = problem_of(model, first, nodev, view_length=view, checked=True)
+    probe = problem_of(model, first, run, devices=None, view_length=view, checked=True)
     resident = RUNTIME_BYTES + results_bytes(probe.model.n_params, run, C)
-    plan = _plan(probe, run, n_dev, max_memory, chunk_size, n_conditions=C, resident=resident,
+    plan = _plan(probe, run, n_dev, n_conditions=C, resident=resident,
                  extra_per_condition=READ_BATCHES * per_test)
+    k = run.swarm.n_restarts if run.swarm is not None else 1
+    keys = row_keys(key, k * C).reshape(k, C, 2)
+    return Chunked(probe, plan, keys, view,
+                   lambda rows: source.batch(rows, length=T, warn=False), h.hexdigest())
 
-    def take(rows):
-        return source.batch(rows, length=T, warn=False)
-    return probe, plan, view, take, h.hexdigest()
 
-
-def _retry(result: FitResult, run: Run, model: AbstractModel, chunk_of, n_chunks: int,
-           view_length: int | None) -> FitResult:
+def _retry(result: FitResult, run: Run, chunked: Chunked) -> FitResult:
     """Every test polished again from the best of its neighbours' optima (`retry_starts`),
     chunk by chunk (the chunks' shapes: the first pass's compiled polish serves), and per test
     the better of the two kept (`merge`)."""
     donors = neighbours(result.current, result.frequency, result.amplitude)
     theta = np.asarray(result.theta, float)
     parts: dict[str, list] = {"theta": [], "rms": [], "nrmse": [], "polish_steps": []}
-    status: tuple[str, ...] = ()
-    for j in range(n_chunks):
-        chunk, padded, n = chunk_of(j)
-        problem = problem_of(model, chunk, run, view_length=view_length, checked=True)
+    status: tuple[Status, ...] = ()
+    for j in range(chunked.plan.n_chunks):
+        problem, padded, n = chunked.problem(j, run)
         z0, _ = retry_starts(problem, donors, theta, padded[:n])
         out = solve(problem, swarm=None, polish=run.polish, uncertainty=False, start=z0)
         parts["theta"].append(out.z[:n])
@@ -315,14 +318,12 @@ def _retry(result: FitResult, run: Run, model: AbstractModel, chunk_of, n_chunks
     return merge(result, again)
 
 
-def _uncertainty(result: FitResult, run: Run, model: AbstractModel, chunk_of, n_chunks: int,
-                 view_length: int | None) -> FitResult:
+def _uncertainty(result: FitResult, run: Run, chunked: Chunked) -> FitResult:
     """The std-errors, intervals and identifiability of `result`, chunk by chunk."""
     theta = np.asarray(result.theta, float)
     fields: dict[str, list] = {}
-    for j in range(n_chunks):
-        chunk, padded, n = chunk_of(j)
-        problem = problem_of(model, chunk, run, view_length=view_length, checked=True)
+    for j in range(chunked.plan.n_chunks):
+        problem, padded, n = chunked.problem(j, run)
         z = theta[padded]
         if problem.n_units > z.shape[0]:  # device padding repeats the last condition
             z = np.concatenate([z, np.repeat(z[-1:], problem.n_units - z.shape[0], axis=0)])

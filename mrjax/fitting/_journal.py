@@ -48,6 +48,11 @@ def _canonical(v: Any) -> Any:
     return repr(v)
 
 
+def _without_callback(swarm):
+    """The swarm's settings less its host callback (which does not change the result)."""
+    return swarm if swarm is None else dataclasses.replace(swarm, callback=None)
+
+
 def fingerprint(problem: TestsProblem, run: Run, keys: jax.Array) -> str:
     """SHA-256 of everything a fit's result depends on: the data (every array of the batch and
     the fit mask, the labels), the model, the random streams (`keys`), the bounds, the method,
@@ -63,8 +68,10 @@ def fingerprint(problem: TestsProblem, run: Run, keys: jax.Array) -> str:
     doc = {"mrjax_version": __version__, "model": problem.model.name,
            "model_tree": _canonical(problem.model), "keys": _canonical(keys),
            "lower": _canonical(problem.lower), "upper": _canonical(problem.upper),
-           "options": {k: _canonical(getattr(run, k)) for k in
-                       ("method", "swarm", "polish", "uncertainty", "seed", "transient")}}
+           "options": {k: _canonical(v) for k, v in (
+               ("method", run.method), ("swarm", _without_callback(run.swarm)),
+               ("polish", run.polish), ("uncertainty", run.uncertainty),
+               ("seed", run.seed), ("transient", run.transient))}}
     h.update(json.dumps(doc, sort_keys=True).encode())
     return h.hexdigest()
 

@@ -13,9 +13,10 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._errors import InputError
+from ..bayes import Likelihood
 from ..data import Batch, View, check_mask, fit_mask, swarm_view
 from ..engine import AbstractProblem, StageSpec, Swarm, SwarmSetup, swarm_result
-from ..models import AbstractModel, check_bounds, get, resolve_model
+from ..models import AbstractModel, check_bounds, exact_tangent, get, resolve_model
 from ..objective import (
     ConditionResidual,
     FullObjective,
@@ -34,6 +35,13 @@ from ..refine import FULL_MAX_STEPS, VIEW_TOL_FACTOR, uncertainty
 #: condition's result then does not depend on how many others share the batch (the chunks of
 #: `mrjax.fitting.chunk_plan` are aligned the same way).
 AUTO_PAGE = 8
+
+
+def scale_gauge(model: AbstractModel) -> tuple[str, ...]:
+    """The unknown the posterior holds first where the records leave a direction undetermined:
+    a Bouc-Wen-type model's z scale (delta)."""
+    # TODO(models): read the model's scale-symmetry property once it lands
+    return ("delta",) if model.name in ("bouc_wen", "modified_bouc_wen") else ()
 
 
 #: `restarts=None` of a per-test fit: a dynamic model's swarms per test are this many over
@@ -231,6 +239,24 @@ class TestsProblem(AbstractProblem):
     def uncertainty(self, z: np.ndarray):
         return uncertainty(self.model, z, self.batch, mask=self.placed_mask)
 
+    def likelihood(self, z: np.ndarray, on_view: bool) -> Likelihood:
+        """The posterior's likelihood: each condition one unit, its residuals on its view or
+        its record, the model integrated with the sub-steps the polish uses at `z`."""
+        if on_view and self.view is None:
+            raise InputError("the posterior on the views needs a problem built with a view")
+        batch, mask = (self.view.batch, self.view.mask) if on_view else (self.source, self.mask)
+        theta0 = np.clip(np.asarray(z, float)[: self.n_real], self.lower, self.upper)
+        model = resolve_model(self.model, theta0, batch.xdot, batch.dt, batch.mask)
+        exact = exact_tangent(model)
+        return Likelihood(
+            residual=ConditionResidual(model, blocks=True), theta0=theta0,
+            data=(batch.x, batch.xdot, batch.dt, batch.force, jnp.asarray(mask)),
+            lower=self.lower, upper=self.upper, names=self.model.param_names,
+            units=self.model.units, labels=tuple(batch.labels),
+            gauge=scale_gauge(self.model),
+            exact=None if exact is None else ConditionResidual(exact, blocks=True),
+            linear=tuple(self.model.fixed_params), dynamic=self.model.dynamic)
+
 
 def tests_problem(
     model: str | AbstractModel,
@@ -242,6 +268,7 @@ def tests_problem(
     devices: Any = None,
     view_length: int | None = None,
     checked: bool = False,
+    view: bool | None = None,
 ) -> TestsProblem:
     """The per-test problem of `model` on `data` (a :class:`mrjax.data.Batch`).
 
@@ -250,7 +277,8 @@ def tests_problem(
     swarm's settings (None: no swarm, so no view); `devices` to shard the conditions over;
     `view_length` pad the swarm's views to this many samples (the view length of a whole
     batch, for its chunks); `checked` skip the checks of the records (a chunk of a batch that
-    passed them).
+    passed them); `view` whether to make the records' views (default: where the swarm scores
+    them).
 
     Raises :class:`mrjax.InputError` for bad bounds or too few scored samples; warns for a
     record shorter than one excitation period.
@@ -260,9 +288,10 @@ def tests_problem(
     mask = fit_mask(data, transient)
     if not checked:
         check_records(model, data, mask)
-    use_view = swarm is not None and (model.dynamic if swarm.view is None else swarm.view)
-    view = swarm_view(data, transient, length=view_length) if use_view else None
-    return TestsProblem(model, data, mask, lo, hi, view=view, transient=transient,
+    if view is None:
+        view = swarm is not None and (model.dynamic if swarm.view is None else swarm.view)
+    views = swarm_view(data, transient, length=view_length) if view else None
+    return TestsProblem(model, data, mask, lo, hi, view=views, transient=transient,
                         devices=devices, mode=swarm.mode if swarm is not None else "separable")
 
 

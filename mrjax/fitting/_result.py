@@ -18,6 +18,7 @@ from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model, source_of
+from ..refine import Status
 from ._retry import spread_warnings
 
 
@@ -33,8 +34,9 @@ class FitResult:
 
     **Fields:**
 
-    - `model`: the model object; `method`, `swarm_mode` (`"separable"`, `"full"`, or `"none"`
-        for `method="lm"`), `seed`: how it was fitted.
+    - `model`: the model object (its `fixed` parameters held); `method` (`"pso+lm"`,
+        `"pso"` or `"lm"`: the stages run), `swarm_mode` (`"separable"`, `"full"`, or `"none"`
+        without a swarm), `seed` (None for a key given as an array): how it was fitted.
     - `labels`, `current` [A], `frequency` [Hz], `amplitude` [m] (NaN if unknown),
         `n_samples`: per condition.
     - `theta` (C, P): identified parameters, SI units, `param_names` order.
@@ -43,11 +45,11 @@ class FitResult:
     - `generations` (C,), `stopped_by_criterion` (C,): swarm generations and whether the
         statistical stop ended it (False: the cap). -1 / False for `method="lm"`.
     - `history` (C, G+1) [N]: group-best RMS per generation (empty for `"lm"`).
-    - `polish_steps` (C,), `polish_status` (C,) str: Levenberg-Marquardt steps (of the
-        full-record polish) and outcome: `"successful"`, `"refined"` (converged on the
-        swarm's subsampled view, then refined on the full record in its few steps; see
-        `mrjax.fit`'s `swarm_view`), `"max_steps_reached"`, `"kept_start"`, ..., or `"none"`
-        without polish.
+    - `polish_steps` (C,), `polish_status` (C,) :class:`mrjax.Status`: Levenberg-Marquardt
+        steps (of the full-record polish) and outcome: `SUCCESSFUL`, `REFINED` (converged on
+        the swarm's subsampled view, then refined on the full record in its few steps; see
+        `mrjax.Swarm`'s `view`), `MAX_STEPS_REACHED`, `KEPT_START`, ..., or `NONE` without
+        polish.
     - `stderr` (C, P), `ci95` (C, P, 2), `corr` (C, P, P), `identifiable` (C, P): uncertainty
         from the Jacobian at the optimum (NaN where undefined).
     - `timings`: seconds per stage.
@@ -57,6 +59,7 @@ class FitResult:
     - `bounds`: the search box, `{"lower": (P,), "upper": (P,)}` [SI], shared by all
         conditions (a dict, so that per-condition slicing leaves it whole); `None` when not
         known. :meth:`warnings` uses it.
+    - `transient`: the initial span left out of the fitness (seconds, `"cycle"` or None).
     - `starts_rms` (C, S) [N]: the RMS on the full record of each polished start (the swarm's,
         then the retry's from a neighbour's optimum, `mrjax.Polish(retry=True)`); `rms` is
         their minimum; a spread above `mrjax.fitting.SPREAD_MARGIN` is warned about (a
@@ -66,7 +69,7 @@ class FitResult:
     model: AbstractModel
     method: str
     swarm_mode: str
-    seed: int
+    seed: int | None
     labels: tuple[str, ...]
     current: np.ndarray
     frequency: np.ndarray
@@ -80,7 +83,7 @@ class FitResult:
     stopped_by_criterion: np.ndarray
     history: np.ndarray
     polish_steps: np.ndarray
-    polish_status: tuple[str, ...]
+    polish_status: tuple[Status, ...]
     stderr: np.ndarray
     ci95: np.ndarray
     corr: np.ndarray
@@ -89,6 +92,7 @@ class FitResult:
     estimated: np.ndarray | None = None
     bounds: dict[str, Any] | None = None
     starts_rms: np.ndarray | None = None
+    transient: float | str | None = None
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -178,6 +182,7 @@ class FitResult:
                 continue
             v = values[f.name]
             kw[f.name] = tuple(v) if isinstance(v, list) else v
+        kw["polish_status"] = tuple(Status(s) for s in kw["polish_status"])
         return cls(**kw)
 
     def params_of(self, i: int) -> dict[str, float]:
@@ -282,7 +287,7 @@ class FitResult:
             "model_source": source_of(self.model),
             "method": self.method,
             "swarm": self.swarm_mode,
-            "seed": int(self.seed),
+            "seed": None if self.seed is None else int(self.seed),
             "param_names": list(names),
             "units": list(self.model.units),
             "mrjax_version": __version__,

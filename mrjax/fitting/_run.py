@@ -5,14 +5,12 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
-from collections.abc import Callable
 from typing import Any
 
-import jax
 import numpy as np
 
 from ..data import Batch
-from ..engine import Outcome, Polish, Swarm, settings, solve
+from ..engine import Chunks, Outcome, Polish, Swarm, check_settings, solve
 from ..models import AbstractModel
 from ..objective import nrmse
 from ..parallel import unpad
@@ -22,34 +20,52 @@ from ._result import FitResult
 
 @dataclasses.dataclass(frozen=True)
 class Run:
-    """Everything a per-test fit of one chunk needs besides the data: `method`, the settings
-    (`swarm`, `polish`: None where the stage does not run; `uncertainty`), `key` (one PRNG key
-    or one per swarm row), `seed`, `bounds`, `transient`, `devices`, `progress`, `callback`."""
+    """The settings of one per-test fit, resolved once from `mrjax.fit`'s arguments
+    (:func:`make_run`): the stages that run (`swarm`, `polish`: None where a stage does not
+    run; `swarm.restarts` resolved for the model and the number of tests), `uncertainty`
+    (std-errors at the result), `seed` (recorded; None for a key given as an array), the
+    problem's `bounds` and `transient`, the `chunks` (memory, journal, devices) and
+    `progress`."""
 
-    method: str
     swarm: Swarm | None
     polish: Polish | None
     uncertainty: bool
-    key: Any
-    seed: int
+    seed: int | None
     bounds: Any = None
     transient: Any = None
-    devices: Any = None
+    chunks: Chunks = Chunks()
     progress: bool | None = False
-    callback: Callable | None = None
+
+    @property
+    def method(self) -> str:
+        """The stages run, as fit.json names them: `"pso+lm"`, `"pso"` or `"lm"`."""
+        if self.swarm is None:
+            return "lm"
+        return "pso+lm" if self.polish is not None else "pso"
 
     @property
     def swarm_mode(self) -> str:
         """The swarm mode reported (`"none"` without a swarm)."""
         return self.swarm.mode if self.swarm is not None else "none"
 
+    @property
+    def devices(self) -> Any:
+        """The devices the conditions are sharded over (None: one)."""
+        return self.chunks.devices
 
-def problem_of(model: str | AbstractModel, data: Batch, run: Run, *,
+    @property
+    def retry(self) -> bool:
+        """Whether the polish asks for the retry from the neighbours' optima."""
+        return self.polish is not None and self.polish.retry
+
+
+def problem_of(model: str | AbstractModel, data: Batch, run: Run, *, devices: Any = ...,
                view_length: int | None = None, checked: bool = False) -> TestsProblem:
-    """The per-test problem of `run` on `data` (see `tests_problem`)."""
+    """The per-test problem of `run` on `data` (see `tests_problem`), on `run`'s devices
+    unless `devices` is given (None: not placed)."""
     return tests_problem(model, data, bounds=run.bounds, transient=run.transient,
-                         swarm=run.swarm, devices=run.devices, view_length=view_length,
-                         checked=checked)
+                         swarm=run.swarm, devices=run.devices if devices is ... else devices,
+                         view_length=view_length, checked=checked)
 
 
 def assemble(problem: TestsProblem, out: Outcome, run: Run) -> FitResult:
@@ -83,42 +99,33 @@ def assemble(problem: TestsProblem, out: Outcome, run: Run) -> FitResult:
         identifiable=np.ones((C, P), bool) if unc is None else np.asarray(unc.identifiable, bool),
         timings=dict(out.timings), estimated=np.asarray(batch.estimated, bool),
         bounds={"lower": np.asarray(problem.lower, float),
-                "upper": np.asarray(problem.upper, float)},
+                "upper": np.asarray(problem.upper, float)}, transient=run.transient,
     )
     return unpad(result, problem.n_real) if result.n_conditions != problem.n_real else result
 
 
-def fit_chunk(model: str | AbstractModel, data: Batch, run: Run, *,
-              view_length: int | None = None, checked: bool = False) -> FitResult:
-    """One batch (or chunk) of conditions through the engine, each stage timed in
-    `FitResult.timings` [s]."""
+def fit_chunk(model: str | AbstractModel, data: Batch, run: Run, key: Any, *,
+              uncertainty: bool | None = None, view_length: int | None = None,
+              checked: bool = False) -> FitResult:
+    """One batch (or chunk) of conditions through the engine with the swarm rows' `key`s, each
+    stage timed in `FitResult.timings` [s]; `uncertainty` overrides `run.uncertainty` (the
+    chunk layer computes std-errors once, after the retry)."""
     t0 = time.perf_counter()
     problem = problem_of(model, data, run, view_length=view_length, checked=checked)
     t_prep = time.perf_counter() - t0
-    out = solve(problem, swarm=run.swarm, polish=run.polish, uncertainty=run.uncertainty,
-                key=run.key if run.key is not None else jax.random.key(run.seed),
-                progress=run.progress, callback=run.callback)
+    out = solve(problem, swarm=run.swarm, polish=run.polish,
+                uncertainty=run.uncertainty if uncertainty is None else uncertainty,
+                key=key, progress=run.progress)
     result = assemble(problem, out, run)
     timings = dict(prepare=t_prep, **result.timings, total=time.perf_counter() - t0)
     return dataclasses.replace(result, timings=timings)
-
-
-def resolve_run(run: Run, model: AbstractModel, n_conditions: int) -> Run:
-    """`run` with the problem's choices made for `model` on `n_conditions` tests: the swarms
-    per test where `Swarm.restarts` is None (:func:`default_restarts`)."""
-    sw = run.swarm
-    if sw is None or sw.restarts is not None:
-        return run
-    sw = dataclasses.replace(sw, restarts=default_restarts(model, n_conditions))
-    return dataclasses.replace(run, swarm=sw)
 
 
 def wants_retry(run: Run, model: AbstractModel, n_conditions: int) -> bool:
     """Whether the fit retries every test from its neighbours' optima
     (`mrjax.Polish(retry=True)`): with a polish, at least two tests and a parameter the force
     is not linear in (a fully linear model has one optimum)."""
-    return (run.polish is not None and run.polish.retry and n_conditions >= 2
-            and model.nonlinear_index.size > 0)
+    return run.retry and n_conditions >= 2 and model.nonlinear_index.size > 0
 
 
 def uncertainty_fields(problem: TestsProblem, theta: np.ndarray, n: int) -> dict[str, Any]:
@@ -130,12 +137,17 @@ def uncertainty_fields(problem: TestsProblem, theta: np.ndarray, n: int) -> dict
             "identifiable": np.asarray(unc.identifiable, bool)[:n]}
 
 
-def make_run(*, method: str, swarm: Swarm | None, polish: Polish | None, key: Any, seed: int,
-             bounds: Any, transient: Any, devices: Any, progress: bool | None,
-             callback: Callable | None, **keywords: Any) -> Run:
-    """The :class:`Run` of `mrjax.fit`'s arguments: its keyword options mapped onto the
-    settings objects (`mrjax.engine.settings`)."""
-    sw, po, unc = settings(method=method, swarm=swarm, polish=polish, **keywords)
-    return Run(method=method, swarm=sw, polish=po, uncertainty=unc, key=key, seed=int(seed),
-               bounds=bounds, transient=transient, devices=devices, progress=progress,
-               callback=callback)
+def make_run(model: AbstractModel, n_conditions: int, *, swarm: Swarm | None,
+             polish: Polish | None, key: Any, bounds: Any = None, transient: Any = None,
+             chunks: Chunks | None = None, progress: bool | None = False) -> Run:
+    """The :class:`Run` of `mrjax.fit`'s arguments for `model` on `n_conditions` tests: the
+    settings objects checked, the swarms per test chosen where `Swarm.restarts` is None
+    (:func:`default_restarts`). Raises :class:`mrjax.InputError` for a settings object of the
+    wrong type or no stage at all."""
+    swarm, polish = check_settings(swarm, polish, chunks)
+    if swarm is not None and swarm.restarts is None:
+        swarm = dataclasses.replace(swarm, restarts=default_restarts(model, n_conditions))
+    seed = int(key) if isinstance(key, (int, np.integer)) and not isinstance(key, bool) else None
+    return Run(swarm=swarm, polish=polish,
+               uncertainty=polish.uncertainty if polish is not None else True, seed=seed,
+               bounds=bounds, transient=transient, chunks=chunks or Chunks(), progress=progress)

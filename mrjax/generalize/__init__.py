@@ -105,6 +105,7 @@ from ._forms import choose_forms as choose_forms
 from ._generalize import generalize as generalize
 from ._identify import LAG_BOUNDS as LAG_BOUNDS
 from ._identify import MIN_GENERATIONS_DYNAMIC as MIN_GENERATIONS_DYNAMIC
+from ._identify import Lag as Lag
 from ._identify import command_unit_of as command_unit_of
 from ._identify import identify as identify
 from ._inverse import ClosedLoop as ClosedLoop
@@ -126,6 +127,13 @@ from ._laws import nodes as nodes
 from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
 from ._model import LawUncertainty as LawUncertainty
+from ._posterior import NOISE_RULE as NOISE_RULE
+from ._posterior import LawPosterior as LawPosterior
+from ._posterior import coefficient_names as coefficient_names
+from ._posterior import law_band as law_band
+from ._posterior import law_posterior_plan as law_posterior_plan
+from ._posterior import read_law_draws as read_law_draws
+from ._posterior import with_coefficients as with_coefficients
 from ._records import SPENCER_1997 as SPENCER_1997
 from ._records import command_record as command_record
 from ._records import random_command as random_command

@@ -11,12 +11,11 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, as_batch, check_mask
+from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, as_batch, check_mask, fit_mask
 from ..data import swarm_view as make_view
-from ..engine import Polish, Swarm, settings
+from ..engine import Polish, Swarm, check_settings
 from ..fitting import FitResult
 from ..models import AbstractModel, resolve_model
-from ..pso import PSOParams
 from ._coding import Layout, bounded_box, build_objective, law_values, total_rms_of
 from ._forms import choose_forms, forms_info
 from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
@@ -147,7 +146,7 @@ def _search_box(model: AbstractModel, start: TwoStep):
 
 
 def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool,
-                   pso_params: PSOParams | None) -> LawsProblem:
+                   pso_params: Any) -> LawsProblem:
     """The joint fit's problem around the two-step laws: the swarm searches the box of
     :func:`_search_box` (a Bouc-Wen shape as `(log delta, q)` around the per-condition values),
     intersected with the polish's box (`bounded_box`: every node value within the model's
@@ -189,22 +188,13 @@ def generalize(
     batch: Batch,
     *,
     method: GeneralizeMethod = "two-step",
-    degrees: Mapping[str, int] | int | None = None,
     laws: Mapping[str, LawKind] | Literal["auto", "fixed"] | None = "auto",
+    degrees: Mapping[str, int] | int | None = None,
     weighting: Weighting = "covariance",
-    key: ArrayLike | None = None,
-    seed: int = 0,
-    swarm: Swarm | None = None,
-    polish: Polish | bool | None = None,
-    n_particles: int | None = None,
-    max_generations: int | None = None,
-    pso_params: PSOParams | None = None,
-    restarts: int | None = None,
-    polish_steps: int | None = None,
-    tol: float | None = None,
+    swarm: Swarm | None = Swarm(max_generations=100),
+    polish: Polish | None = Polish(max_steps=100),
+    key: int | ArrayLike = 0,
     mask: ArrayLike | None = None,
-    swarm_view: bool | None = None,
-    uncertainty: bool | None = None,
 ) -> GeneralizedModel:
     """Make a current-dependent model from per-condition fits (eq 24-29).
 
@@ -233,21 +223,20 @@ def generalize(
         paper's grid it picks eq 24-29's forms.
     - `weighting`: two-step averaging, `"covariance"` (default; inverse-covariance weighted,
         generalized least squares) or `"equal"` (the paper's plain means).
-    - `key`, `seed`: PRNG key of the joint swarm (default `jax.random.key(seed)`).
     - `swarm`: the joint swarm's :class:`mrjax.Swarm` (default `Swarm(max_generations=100)`;
-        its `mode` does not apply: the linear laws are always solved by least squares);
-        `n_particles`, `max_generations`, `pso_params`, `restarts` (independent swarms in one
-        compiled program, the best kept), `swarm_view` set single fields of it.
+        its `mode` does not apply: the linear laws are always solved by least squares; its
+        `view`: let the swarm and a first polish score the records' views,
+        `mrjax.data.swarm_view`, by default for the ODE models). None: the polish starts from
+        the two-step laws.
     - `polish`: the joint Levenberg-Marquardt polish's :class:`mrjax.Polish` (default
-        `Polish(max_steps=100)`; `False`: no polish); `polish_steps` (per stage), `tol` (the
-        stop of `mrjax.refine.lm_solve`; the full records to 100 x `tol` after the views, to
-        10 x `tol` where the views' polish is skipped) and `uncertainty` set single fields of
-        it.
-    - `mask`: (C, T) samples to score (default the batch mask; combined with it). The swarm's
-        views score every sample of theirs.
-    - `swarm_view`: let the joint swarm and a first polish score the records' views
-        (`mrjax.data.swarm_view`); default: for the ODE models.
-    - `uncertainty`: std-errors of the joint coefficients (`GeneralizedModel.uncertainty`).
+        `Polish(max_steps=100)`, per stage; its `tol` stops `mrjax.refine.lm_solve`: the full
+        records to 100 x `tol` after the views, to 10 x `tol` where the views' polish is
+        skipped; its `uncertainty`: std-errors of the joint coefficients,
+        `GeneralizedModel.uncertainty`). None: no polish.
+    - `key`: the joint swarm's seed or PRNG key; same key, same result.
+    - `mask`: (C, T) samples to score (default the fit's: the batch mask less the fit's
+        `transient`; combined with the batch mask). The swarm's views score every sample of
+        theirs.
 
     **Returns:** a :class:`GeneralizedModel` (laws of the current, in A).
     """
@@ -255,6 +244,8 @@ def generalize(
     batch = as_batch(batch)
     method = str(method).replace("_", "-")
     theta_raw, cur = _checked(result, batch, method, weighting)
+    if mask is None and result.transient is not None:  # the fit's scored samples
+        mask = fit_mask(batch, result.transient)
     model = result.model
     theta = canonical_z_scale(model, theta_raw)
     start, used, support, info = _two_step_stage(result, batch, theta, cur, degrees, laws,
@@ -263,18 +254,15 @@ def generalize(
     rng = (float(start.levels.min()), float(start.levels.max()))
     if method == "two-step":
         info["timings"] = timings
-        return make_generalized(model, start.layout, start.coef, "two-step", start.rms, rng, used, support,
-                     info)
-    sw, po, unc = settings(method="pso+lm", swarm=swarm, polish=polish,
-                           swarm_default=Swarm(max_generations=100),
-                           polish_default=Polish(max_steps=100), n_particles=n_particles,
-                           max_generations=max_generations, pso_params=pso_params,
-                           restarts=restarts, swarm_view=swarm_view, polish_steps=polish_steps,
-                           tol=tol, uncertainty=uncertainty)
-    use_view = model.dynamic if sw.view is None else bool(sw.view)
-    problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view, sw.params)
-    out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
-                     key=int(seed) if key is None else key)
+        return make_generalized(model, start.layout, start.coef, "two-step", start.rms, rng, used,
+                                support, info, transient=result.transient)
+    sw, po = check_settings(swarm, polish)
+    view = sw.view if sw is not None else None
+    use_view = model.dynamic if view is None else bool(view)
+    problem = _joint_problem(model, batch, start, check_mask(batch, mask), use_view,
+                             sw.params if sw is not None else None)
+    out = solve_laws(problem, swarm=sw, polish=po,
+                     uncertainty=po.uncertainty if po is not None else True, key=key)
     info.update(out.info())
     timings.update(out.outcome.timings)
     if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)
@@ -283,7 +271,8 @@ def generalize(
     timings["total"] = time.perf_counter() - t0
     info["timings"] = timings
     return make_generalized(model, start.layout, out.coef, "joint", out.rms, rng, used, support,
-                            info, uncertainty=law_uncertainty_of(model, start.layout, out))
+                            info, uncertainty=law_uncertainty_of(model, start.layout, out),
+                            transient=result.transient)
 
 
 def law_uncertainty_of(model: AbstractModel, layout: Layout, out: JointOutcome

@@ -7,8 +7,9 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Any
 
+import equinox as eqx
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -16,7 +17,7 @@ from .._errors import InputError
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, Condition, as_batch, fit_mask
 from ..data import swarm_view as make_view
-from ..engine import Polish, Swarm, settings
+from ..engine import Polish, Swarm, check_settings
 from ..models import AbstractModel, check_bounds, get
 from ..pso import PSOParams
 from ._coding import LOG_FLOOR, Layout, bounded_box, build_objective
@@ -36,7 +37,6 @@ LAG_BOUNDS: tuple[float, float] = (1.0, 1e4)
 #: random-command record the improvements come in bursts, and an early stop leaves the polish
 #: far from the optimum.
 MIN_GENERATIONS_DYNAMIC = 100
-Lag = Literal["fit"] | float | None
 
 
 def command_unit_of(batch: Batch) -> str:
@@ -53,24 +53,28 @@ def command_unit_of(batch: Batch) -> str:
     return units[0] if units else "A"
 
 
-def _lag_mode(lag: Any, varying: bool, info: dict[str, Any]) -> tuple[str, float]:
+def _lag_mode(lag: Any, varying: bool, info: dict[str, Any]
+              ) -> tuple[str, float, tuple[float, float]]:
+    """`(mode, eta0, bounds)` of `identify`'s `lag`: mode `"none"`, `"fit"` or `"fixed"`."""
     if lag is None or (isinstance(lag, str) and lag.lower() == "none"):
-        return "none", 0.0
+        return "none", 0.0, LAG_BOUNDS
     if isinstance(lag, str):
         if lag.lower() != "fit":
-            raise InputError(f"lag must be 'fit', a rate in 1/s or None, got {lag!r}")
-        if not varying:
-            info["lag_note"] = ("no record has a time-varying command: the lag has no effect "
-                                "and is not fitted")
-            return "none", 0.0
-        return "fit", 0.0
-    try:
-        v = float(lag)
-    except (TypeError, ValueError):
-        raise InputError(f"lag must be 'fit', a rate in 1/s or None, got {lag!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise InputError(f"lag (eta) must be a positive rate in 1/s, got {lag!r}")
-    return "fixed", v
+            raise InputError(f"lag must be 'fit', a rate in 1/s, a Lag or None, got {lag!r}")
+        lag = Lag()
+    elif not isinstance(lag, Lag):
+        try:
+            lag = Lag(rate=float(lag))
+        except (TypeError, ValueError):
+            raise InputError(f"lag must be 'fit', a rate in 1/s, a Lag or None, got "
+                             f"{lag!r}") from None
+    if lag.rate is not None:
+        return "fixed", float(lag.rate), lag.bounds
+    if not varying:
+        info["lag_note"] = ("no record has a time-varying command: the lag has no effect "
+                            "and is not fitted")
+        return "none", 0.0, lag.bounds
+    return "fit", 0.0, lag.bounds
 
 
 def _user_bounded(model: AbstractModel, bounds) -> set[str]:
@@ -85,28 +89,34 @@ def _user_bounded(model: AbstractModel, bounds) -> set[str]:
     return out
 
 
+class Lag(eqx.Module):
+    """The first-order command filter $\\dot u = -\\eta(u - v)$ of :func:`identify`, fitted
+    (`rate=None`, searched in `bounds` [1/s]) or fixed at `rate` [1/s]. `identify`'s `lag`
+    also takes `"fit"` (`Lag()`), a rate (`Lag(rate=...)`) or None (no filter)."""
+
+    rate: float | None = eqx.field(static=True, default=None)
+    bounds: tuple[float, float] = eqx.field(static=True, default=LAG_BOUNDS)
+
+    def __check_init__(self):
+        check_lag_bounds(self.bounds)
+        if self.rate is not None:
+            v = float(self.rate)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"lag (eta) must be a positive rate in 1/s, got {self.rate!r}")
+
+
 def identify(
     data: Batch | Condition | Sequence[Condition] | str | Sequence[str],
     model: str | AbstractModel,
     *,
-    degrees: Mapping[str, int] | int | None = None,
     laws: Mapping[str, str] | None = None,
-    lag: Lag = "fit",
-    lag_bounds: tuple[float, float] = LAG_BOUNDS,
+    degrees: Mapping[str, int] | int | None = None,
+    lag: Lag | str | float | None = "fit",
     bounds: tuple[Any, Any] | None = None,
     transient: float | str | None = None,
-    key: ArrayLike | None = None,
-    seed: int = 0,
-    swarm: Swarm | None = None,
-    polish: Polish | bool | None = None,
-    n_particles: int | None = None,
-    max_generations: int | None = None,
-    pso_params: PSOParams | None = None,
-    restarts: int | None = None,
-    polish_steps: int | None = None,
-    tol: float | None = None,
-    uncertainty: bool | None = None,
-    swarm_view: bool | None = None,
+    swarm: Swarm | None = Swarm(),
+    polish: Polish | None = Polish(),
+    key: int | ArrayLike = 0,
 ) -> GeneralizedModel:
     """Identify a model whose parameters are laws of the command, from every record at once.
 
@@ -132,29 +142,25 @@ def identify(
     - `laws`: parameter name -> `"poly"` (default) or `"exp"`, the others by `degrees` and
         the defaults (`"fixed"`, None); the forms chosen by the data (`"auto"`) and `"sat"`
         laws need per-test fits at constant commands (`generalize`).
-    - `lag`: `"fit"` (default; $\\eta$ searched in `lag_bounds`), a rate [1/s] to fix it, or
-        None for no filter. Without a time-varying command the lag has no effect and is not
-        fitted.
-    - `lag_bounds`: `(low, high)` [1/s] of the fitted $\\eta$.
+    - `lag`: a :class:`Lag` (fitted in its `bounds` [1/s], or fixed at its `rate`), `"fit"`
+        (default: `Lag()`, $\\eta$ searched in `LAG_BOUNDS`), a rate [1/s] to fix it, or None
+        for no filter. Without a time-varying command the lag has no effect and is not fitted.
     - `bounds`: `(lower, upper)` of the *parameters* (as `mrjax.fit`): each law's value at
         every node of the command range is searched in it. Default the model's bounds, except
         that a Bouc-Wen-type model's constant delta, beta, gamma are searched on the
         |z|max = 1 scale as delta in `DELTA_RANGE` and q = gamma / delta in `Q_RANGE`.
     - `transient`: drop an initial span of each record from the score: seconds, `"cycle"`
         or None.
-    - `key`, `seed`: the swarm's PRNG key (default `jax.random.key(seed)`); same key, same
-        result.
     - `swarm`: the swarm's :class:`mrjax.Swarm` (default `Swarm()`; its `params` default:
         window 25 and, for dynamic models, at least `MIN_GENERATIONS_DYNAMIC` generations;
-        its `mode` does not apply: the linear laws are always solved by least squares);
-        `n_particles`, `max_generations`, `pso_params`, `restarts` (independent swarms in one
-        compiled program, the best polished), `swarm_view` (score the swarm and a first polish
-        on the records' views, `mrjax.data.swarm_view`; default: for the ODE models) set single
-        fields of it.
+        its `mode` does not apply: the linear laws are always solved by least squares; its
+        `view`: score the swarm and a first polish on the records' views,
+        `mrjax.data.swarm_view`, by default for the ODE models). None: no swarm.
     - `polish`: the Levenberg-Marquardt stages' :class:`mrjax.Polish` (default `Polish()`;
-        `False`: no polish; views to `tol`, full records to 100 x `tol`; 10 x `tol` where the
-        views' polish is skipped); `polish_steps`, `tol` and `uncertainty` (std-errors and
-        identifiability of every coefficient and of $\\eta$) set single fields of it.
+        views to `tol`, full records to 100 x `tol`; 10 x `tol` where the views' polish is
+        skipped; its `uncertainty`: std-errors and identifiability of every coefficient and of
+        $\\eta$). None: no polish.
+    - `key`: the swarm's seed or PRNG key; same key, same result.
 
     **Returns:** a :class:`GeneralizedModel` with `method="joint"`, `command_unit` `"A"` or
     `"V"`, `lag` the rate [1/s] (None without a filter), `uncertainty`, and `info` (stage
@@ -187,12 +193,11 @@ def identify(
     else:
         per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
         n_levels = group_currents(per)[0].size
-    mode, eta0 = _lag_mode(lag, varying, info)
+    mode, eta0, lag_box = _lag_mode(lag, varying, info)
     forms = choose_forms(model, None, None, degrees, laws, n_levels, unit)
     kinds, degs = forms.kinds, forms.degrees
     layout = Layout(kinds, forms.sizes, tuple(nodes(lo, hi, d + 1) for d in degs))
     lo_b, hi_b = check_bounds(model, bounds)
-    lo_lag, hi_lag = _check_lag_bounds(lag_bounds)
     user = _user_bounded(model, bounds)
     names = model.param_names
     z_scale = model.name in Z_SCALE_MODELS
@@ -208,7 +213,7 @@ def identify(
     obj = build_objective(model, layout, nu0, eta0=eta0, lag=mode, log_params=logs,
                           z_scale=z_scale, pair=pair)
     coding = obj.coding
-    lm_lo, lm_hi = bounded_box(model, layout, coding, lo_b, hi_b, (lo_lag, hi_lag),
+    lm_lo, lm_hi = bounded_box(model, layout, coding, lo_b, hi_b, lag_box,
                                free_shape=not (user & {"delta", "beta", "gamma"}))
     D = coding.n_position
     if z_scale:
@@ -216,23 +221,21 @@ def identify(
                            f"delta(u0) = beta(u0) + gamma(u0)")
     full = packed_rows(batch, mask, cmd) if not model.dynamic and cmd.ndim == 1 else \
         make_rows(batch, mask, cmd)
-    sw, po, unc = settings(method="pso+lm", swarm=swarm, polish=polish, n_particles=n_particles,
-                           max_generations=max_generations, pso_params=pso_params,
-                           restarts=restarts, swarm_view=swarm_view, polish_steps=polish_steps,
-                           tol=tol, uncertainty=uncertainty)
-    use_view = model.dynamic if sw.view is None else bool(sw.view)
+    sw, po = check_settings(swarm, polish)
+    use_view = model.dynamic if sw is None or sw.view is None else bool(sw.view)
     view = None
     if use_view:
         v = make_view(batch, transient, samples_per_period=JOINT_SAMPLES_PER_PERIOD)
         view = make_rows(v.batch, np.asarray(v.mask) & np.asarray(v.batch.mask),
                          batch_command(v.batch, unit))
-    params = sw.params if sw.params is not None else PSOParams(window=25, min_generations=min(
-        MIN_GENERATIONS_DYNAMIC if model.dynamic else 0, sw.generation_cap))
+    params = sw.params if sw is not None and sw.params is not None else PSOParams(
+        window=25, min_generations=min(MIN_GENERATIONS_DYNAMIC if model.dynamic else 0,
+                                       sw.generation_cap if sw is not None else 0))
     problem = LawsProblem(model, layout, obj, lm_lo[:D], lm_hi[:D], lm_lo, lm_hi, full, view,
                           np.linspace(lo, hi, N_LEVELS), pso_params=params)
     timings = {"prepare": time.perf_counter() - t0}
-    out = solve_laws(problem, swarm=sw, polish=po, uncertainty=unc,
-                     key=int(seed) if key is None else key)
+    out = solve_laws(problem, swarm=sw, polish=po,
+                     uncertainty=po.uncertainty if po is not None else True, key=key)
     info.update(out.info())
     timings.update(out.outcome.timings)
     timings["total"] = time.perf_counter() - t0
@@ -242,7 +245,8 @@ def identify(
                             uncertainty=law_uncertainty_of(model, layout, out))
 
 
-def _check_lag_bounds(lag_bounds) -> tuple[float, float]:
+def check_lag_bounds(lag_bounds) -> tuple[float, float]:
+    """`(low, high)` [1/s] of a fitted lag, checked."""
     try:
         a, b = (float(v) for v in lag_bounds)
     except (TypeError, ValueError):

@@ -66,6 +66,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._errors import InputError
+from ..bayes import Likelihood
 from ..engine import (
     AbstractProblem,
     Outcome,
@@ -77,7 +79,7 @@ from ..engine import (
     row_keys,
     solve,
 )
-from ..models import AbstractModel, resolve_model
+from ..models import AbstractModel, exact_tangent, resolve_model
 from ..pso import PSOParams, default_params
 from ..refine import VIEW_TOL_FACTOR, jacobian_uncertainty
 from ._coding import (
@@ -87,8 +89,10 @@ from ._coding import (
     coded_law_values,
     coefficients_of,
     from_bounded,
+    joint_residual_blocks,
     joint_residuals,
     n_scored,
+    node_box,
     objective_at,
     total_rms_of,
 )
@@ -99,15 +103,35 @@ N_LEVELS = 9
 
 
 class LawResidual(eqx.Module):
-    """The residuals [N] of every record (flattened, zero on unscored samples) for the polish's
-    variables `z` of :class:`Coding` (`Coding.from_bounded`)."""
+    """The one residual of the laws: the residuals [N] of every record (zero on unscored
+    samples) for the polish's variables `z` of :class:`Coding` (`Coding.from_bounded`),
+    flattened; with `free=True` for the free node values (`Coding.from_free`, the unknowns
+    of the posterior) as blocks of rows, `((r (R, T), mask (R, T)), ...)` (see
+    `mrjax.bayes.Likelihood`)."""
 
     model: AbstractModel
     coding: Coding
+    free: bool = eqx.field(static=True, default=False)
 
     def __call__(self, z, data):
+        if self.free:
+            nu, eta = self.coding.from_free(z)
+            return joint_residual_blocks(self.model, self.coding, nu, eta, data)
         nu, eta = self.coding.from_bounded(z)
         return joint_residuals(self.model, self.coding, nu, eta, data)
+
+
+def node_names(model: AbstractModel, layout: Layout, free: list[int]
+               ) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """`(names, units)` of the free node values `free` of `layout`: `"c@0.5A"` (`"log
+    beta@0A"` for an `"exp"` law) and the parameter's unit (`"log N/m"`)."""
+    names, units = [], []
+    for p, (n, u) in enumerate(zip(model.param_names, model.units)):
+        log = layout.kinds[p] == "exp"
+        for nd in layout.nodes[p]:
+            names.append(f"{'log ' if log else ''}{n}@{nd:g}A")
+            units.append(f"log {u}" if log else u)
+    return tuple(names[k] for k in free), tuple(units[k] for k in free)
 
 
 @eqx.filter_jit
@@ -173,7 +197,8 @@ class LawsProblem(AbstractProblem):
     `lm_upper` (D + K,) the polish's box; `full` the records; `view` their swarm views or None;
     `levels` commands spanning the data (sub-step policy); `start` `(nu, eta)` a candidate to
     be never worse than (e.g. the two-step laws) or None; `pso_params` the swarm's default
-    hyperparameters.
+    hyperparameters; `row_labels` the labels of the records of `full` and of `view`, in row
+    order (one row per record: the posterior's noise levels), or None.
     """
 
     view_tol_factor = 1.0
@@ -184,12 +209,14 @@ class LawsProblem(AbstractProblem):
                  lower: np.ndarray, upper: np.ndarray, lm_lower: np.ndarray,
                  lm_upper: np.ndarray, full: tuple[Rows, ...], view: tuple[Rows, ...] | None,
                  levels: np.ndarray, start: tuple[np.ndarray, float] | None = None,
-                 pso_params: PSOParams | None = None):
+                 pso_params: PSOParams | None = None,
+                 row_labels: tuple[tuple[str, ...], tuple[str, ...] | None] | None = None):
         self.model, self.layout, self.objective = model, layout, objective
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.lm_lower, self.lm_upper = np.asarray(lm_lower, float), np.asarray(lm_upper, float)
         self.full, self.view, self.levels, self.start = full, view, np.asarray(levels), start
         self.pso_params = pso_params if pso_params is not None else default_params("separable")
+        self.row_labels = row_labels
         self._policy: dict = {}  # the sub-step policy's answers (see `resolved`)
 
     @property
@@ -321,6 +348,33 @@ class LawsProblem(AbstractProblem):
         nu, eta = self.laws_of(z[0])
         m = self.resolved(nu, eta, self.full)
         return np.array([float(total_rms_of(m, self.coding, nu, eta, self.full))])
+
+    def likelihood(self, z: np.ndarray, on_view: bool) -> Likelihood:
+        """The posterior's likelihood: one unit, the whole data set, one noise level per row
+        (record); its unknowns the free node values `z` (1, Q) of the :class:`Coding`
+        (`Coding.free_of`), in the box of every node value within the model's bounds
+        (:func:`node_box`); the laws' residuals on the views or the records, integrated with
+        the polish's sub-step policy."""
+        data = self.view if on_view else self.full
+        if data is None or self.row_labels is None:
+            raise InputError("the laws' posterior needs a problem built with one row per "
+                             "record (and the views where they are scored)")
+        phi0 = np.asarray(z, float)
+        nu, eta = self.coding.from_free(jnp.asarray(phi0[0]))
+        m = self.resolved(np.asarray(nu), float(eta), data)
+        exact = exact_tangent(m)
+        free = list(self.coding.free)
+        lo, hi = node_box(self.model, self.layout, *self.model.bounds)
+        names, units = node_names(self.model, self.layout, free)
+        fixed = set(self.model.fixed_params)
+        return Likelihood(
+            residual=LawResidual(m, self.coding, free=True), theta0=phi0,
+            data=jax.tree.map(lambda a: a[None], data), lower=lo[free], upper=hi[free],
+            names=names, units=units, labels=("laws",),
+            row_labels=self.row_labels[1 if on_view else 0], unit_dim="laws",
+            exact=None if exact is None else LawResidual(exact, self.coding, free=True),
+            linear=tuple(n for n in names if n.split("@")[0] in fixed),
+            dynamic=self.model.dynamic)
 
     def uncertainty(self, z: np.ndarray):
         if not self.coding.n_free:

@@ -124,6 +124,8 @@ class GeneralizedModel:
     - `lag`: $\\eta$ [1/s] of the command filter $\\dot u = -\\eta(u - v)$ the laws see (the
         command v of a record is filtered before the laws are applied), or None for none.
     - `uncertainty`: a :class:`LawUncertainty` of the coefficients and the lag, or None.
+    - `transient`: the initial span of each record left out of the fit (seconds, `"cycle"` or
+        None); the laws' posterior scores the same samples.
     """
 
     model: AbstractModel
@@ -137,6 +139,7 @@ class GeneralizedModel:
     command_unit: str = "A"
     lag: float | None = None
     uncertainty: LawUncertainty | None = None
+    transient: float | str | None = None
 
     def __post_init__(self):
         model = get(self.model)
@@ -479,6 +482,8 @@ class GeneralizedModel:
         }
         if "law_criteria" in self.info:
             out["law_criteria"] = self.info["law_criteria"]
+        if self.transient is not None:
+            out["transient"] = self.transient
         if self.uncertainty is not None:
             out.update(self.uncertainty.to_dict())
         return json_safe(out)
@@ -513,7 +518,7 @@ class GeneralizedModel:
                    total_rms=float("nan") if total is None else float(total),
                    current_range=tuple(rng), weighting=d.get("weighting") or "",
                    command_unit=unit, lag=None if lag is None else float(lag),
-                   uncertainty=LawUncertainty.from_dict(d),
+                   uncertainty=LawUncertainty.from_dict(d), transient=d.get("transient"),
                    info={"lag_fitted": bool(d.get("lag_fitted", False)),
                          **{k: d[k] for k in ("law_choice", "law_criteria")
                             if d.get(k) is not None and d.get(k) != "given"}})

@@ -40,6 +40,7 @@ from ._lm import DEFAULT_TOL as DEFAULT_TOL
 from ._lm import LINEAR_SOLVER as LINEAR_SOLVER
 from ._lm import STATUS_NAMES as STATUS_NAMES
 from ._lm import LMSolution as LMSolution
+from ._lm import Status as Status
 from ._lm import lm_solve as lm_solve
 from ._lm import status_name as status_name
 from ._polish import BOUND_NUDGE as BOUND_NUDGE

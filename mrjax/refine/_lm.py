@@ -7,6 +7,7 @@ linear solve and the decoding of optimistix's status live here only.
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Callable
 from typing import Any
 
@@ -35,11 +36,40 @@ STALL_STEPS = 8
 #: step than the steepest variable's under the same damping).
 SCALE_FLOOR = 1e-3
 
-#: Readable status of a solve, indexed by :attr:`LMSolution.status`.
-STATUS_NAMES: tuple[str, ...] = (
-    "successful", "max_steps_reached", "nonlinear_divergence", "nonfinite", "singular",
-    "breakdown", "stagnation", "conlim", "nonfinite_input", "unknown",
-)
+class Status(enum.StrEnum):
+    """How a polish ended, per unit (an enumeration whose members are also their names as
+    text, so `Status.SUCCESSFUL == "successful"` and fit.json holds the text).
+
+    The Levenberg-Marquardt outcomes (optimistix's `RESULTS`): `SUCCESSFUL` (the stop of
+    :func:`lm_solve` met), `MAX_STEPS_REACHED`, `NONLINEAR_DIVERGENCE`, `NONFINITE`,
+    `SINGULAR`, `BREAKDOWN`, `STAGNATION`, `CONLIM`, `NONFINITE_INPUT`, `UNKNOWN`; and the
+    engine's: `REFINED` (a polish on the swarm's views converged and the full records'
+    refinement ran its steps), `KEPT_START` (the polished result was worse than its start,
+    which was kept), `NONE` (no polish ran).
+    """
+
+    SUCCESSFUL = "successful"
+    MAX_STEPS_REACHED = "max_steps_reached"
+    NONLINEAR_DIVERGENCE = "nonlinear_divergence"
+    NONFINITE = "nonfinite"
+    SINGULAR = "singular"
+    BREAKDOWN = "breakdown"
+    STAGNATION = "stagnation"
+    CONLIM = "conlim"
+    NONFINITE_INPUT = "nonfinite_input"
+    UNKNOWN = "unknown"
+    REFINED = "refined"
+    KEPT_START = "kept_start"
+    NONE = "none"
+
+    @property
+    def converged(self) -> bool:
+        """Whether the polish ended at an optimum (successful or refined)."""
+        return self in (Status.SUCCESSFUL, Status.REFINED)
+
+
+#: The solve's statuses in the order of :attr:`LMSolution.status`'s codes.
+STATUS_NAMES: tuple[Status, ...] = tuple(Status)[:10]
 # optimistix.RESULTS members (public attributes) and the name mrjax reports for each
 _RESULTS = (
     ("successful", "successful"), ("nonlinear_max_steps_reached", "max_steps_reached"),
@@ -86,10 +116,10 @@ def _status_code(result: optx.RESULTS) -> Int[Array, ""]:
     return code
 
 
-def status_name(code: ArrayLike) -> str:
-    """The readable name of an :attr:`LMSolution.status` code (host)."""
+def status_name(code: ArrayLike) -> Status:
+    """The :class:`Status` of an :attr:`LMSolution.status` code (host)."""
     c = int(code)
-    return STATUS_NAMES[c] if 0 <= c < len(STATUS_NAMES) else f"unknown({c})"
+    return STATUS_NAMES[c] if 0 <= c < len(STATUS_NAMES) else Status.UNKNOWN
 
 
 def lm_solve(

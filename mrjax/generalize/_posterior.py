@@ -1,5 +1,6 @@
-"""The joint-laws kind of the posterior: `mrjax.posterior` on a `GeneralizedModel` (laws of the
-coil current), and the predictive band of the laws on new records (unseen currents).
+"""The posterior of laws over the current: its plan for the engine's posterior stage
+(`mrjax.posterior` on a `GeneralizedModel`), its result :class:`LawPosterior`, and the
+predictive band of the laws on new records (unseen currents).
 
 **Unknowns.** The laws' values at their nodes, as the joint fit polishes them
 (`mrjax.generalize`'s `Coding.from_free`: the value of each parameter at d + 1 currents spread
@@ -41,7 +42,7 @@ import dataclasses
 import functools
 import os
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
@@ -51,42 +52,29 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, Condition, as_batch, check_mask, swarm_view
-from ..generalize import (
-    Z_SCALE_MODELS,
-    GeneralizedModel,
-    Law,
-    Layout,
-    build_objective,
-    joint_residual_blocks,
-    make_rows,
-    node_box,
-    nodes,
-    record_order,
+from .._warnings import ResultWarning, WarningKind
+from ..bayes import (
+    RHO,
+    SIGMA,
+    Posterior,
+    PosteriorFront,
+    PredictiveBand,
+    arviz,
+    at_bounds,
+    predictive_band,
 )
-from ..models import exact_tangent
-from ._noise import check_noise
-from ._pertest import DATA_CHOICES, PredictiveBand, predictive_band
-from ._priors import at_bounds
-from ._result import RHO, SIGMA, Posterior, PosteriorFront, arviz
-from ._sampler import CHAINS, DRAWS, WARMUP, Sampler, sample
+from ..data import JOINT_SAMPLES_PER_PERIOD, Batch, Condition, as_batch, check_mask, fit_mask, swarm_view
+from ..engine import PosteriorPlan, register_posterior
+from ._coding import Layout, bounded_box, build_objective, node_box
+from ._joint import N_LEVELS, LawsProblem, node_names
+from ._laws import Law, nodes
+from ._model import GeneralizedModel
+from ._rows import make_rows, record_order
 
 #: How a new record's noise level is chosen (see the module notes).
 NOISE_RULE = ("relative, by motion: the root mean square over the fitted records of the same "
               "frequency and amplitude (all, where none) of their RMS residual at the median "
               "laws / max|F measured|, times the new record's max|F| of the median laws")
-
-
-class LawBlocks(eqx.Module):
-    """Residual function of the laws for `mrjax.bayes.sample`: the free node values `phi`
-    (`Coding.from_free`) -> the joint fit's residual blocks [N] on every group of records."""
-
-    model: Any
-    coding: Any
-
-    def __call__(self, phi, data):
-        nu, eta = self.coding.from_free(phi)
-        return joint_residual_blocks(self.model, self.coding, nu, eta, data)
 
 
 @eqx.filter_jit
@@ -127,16 +115,6 @@ def coefficient_names(gm: GeneralizedModel) -> tuple[tuple[str, ...], tuple[str,
             else:
                 units.append(u if m == 0 else f"{u}/A^{m}")
     return tuple(out), tuple(units)
-
-
-def _node_names(gm: GeneralizedModel, layout: Layout, free: Sequence[int]):
-    names, units = [], []
-    for p, (n, u) in enumerate(zip(gm.param_names, gm.model.units)):
-        log = layout.kinds[p] == "exp"
-        for nd in layout.nodes[p]:
-            names.append(f"{'log ' if log else ''}{n}@{nd:g}A")
-            units.append(f"log {u}" if log else u)
-    return tuple(names[k] for k in free), tuple(units[k] for k in free)
 
 
 def _constant_currents(batch: Batch) -> np.ndarray:
@@ -401,119 +379,99 @@ def read_law_draws(path: str | os.PathLike, gm: GeneralizedModel, *, max_draws: 
     return coef[pick], noise, records, currents, scale, motion
 
 
-def law_posterior(
-    gm: GeneralizedModel,
-    data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
-    *,
-    draws: int = DRAWS,
-    chains: int = CHAINS,
-    warmup: int = WARMUP,
-    noise: str = "iid",
-    prior: Mapping[str, Any] | None = None,
-    key: ArrayLike | None = None,
-    seed: int = 0,
-    likelihood_data: str | None = None,
-    mask: ArrayLike | None = None,
-    sampler: Sampler | None = None,
-    progress: bool | None = False,
-) -> LawPosterior:
-    """The posterior of the laws of a `GeneralizedModel` over the current, by NUTS.
-
-    **Arguments:**
-
-    - `gm`: laws of the coil current (`mrjax.generalize.generalize`, joint or two-step, or
-        given): the chains start at its coefficients (a joint fit's are the least-squares
-        optimum).
-    - `data`: records at constant currents [A], usually those the laws were fitted on.
-    - `draws`, `chains`, `warmup`, `sampler`, `noise`, `key`, `seed`, `progress`: as
-        `mrjax.posterior` (one noise level per record; with `"ar1"` one rho for all).
-    - `prior`: {node name: prior} on the unknowns (the names of `LawPosterior.nodes`, e.g.
-        `"c@0.5A"`); default flat on the node values' box.
-    - `likelihood_data`: `"record"` or `"view"` (the joint swarm's views,
-        `JOINT_SAMPLES_PER_PERIOD` samples per period). Default: the view for the dynamic
-        models, the record for the static ones (as the per-test posterior, and why).
-    - `mask`: (C, T) scored samples of the records (default the batch mask).
-
-    **Returns:** a :class:`LawPosterior`.
-
-    Warns (`RuntimeWarning`) for laws that are not a joint optimum, node values at their
-    bounds and chains that did not converge. Raises :class:`mrjax.InputError` for laws of a
-    time-varying command or a voltage, records without a constant current, and impossible
-    options.
-    """
-    if not isinstance(gm, GeneralizedModel):
-        raise InputError(f"law_posterior needs a GeneralizedModel, got {type(gm).__name__}")
+def law_posterior_plan(gm: GeneralizedModel, batch: Batch, likelihood_data: str | None
+                       ) -> PosteriorPlan:
+    """The posterior plan of laws over the current on records `batch` at constant currents:
+    the laws' problem (one row per record, on the records or their views), the free node
+    values of the laws as the optimum, the view for a dynamic model by default. Warns for
+    laws that are not a joint optimum and node values at their bounds. Raises
+    :class:`mrjax.InputError` for laws of a time-varying command or a voltage, and records
+    without a constant current."""
     if gm.lag is not None or gm.command_unit != "A":
         raise InputError("the posterior of laws of a time-varying command (lag or voltage) is "
                          "not available; laws over a constant current only")
     model = gm.model
-    sampler = (sampler or Sampler(draws=draws, chains=chains, warmup=warmup)).for_model(
-        model.dynamic).check()
-    check_noise(noise)
-    if likelihood_data is not None and likelihood_data not in DATA_CHOICES:
-        raise InputError(f"likelihood_data must be one of {', '.join(DATA_CHOICES)}, got "
-                         f"{likelihood_data!r}")
-    batch = as_batch(data)
     cur = _constant_currents(batch)
     layout = _layout(gm)
-    if model.name in Z_SCALE_MODELS:  # the joint fit's z-scale: delta = beta + gamma at u0
+    z_scale = gm.model.scale_symmetry is not None if hasattr(gm.model, "scale_symmetry") else \
+        model.name in ("bouc_wen", "modified_bouc_wen")
+    if z_scale:  # the joint fit's z-scale: delta = beta + gamma at u0
         gm = gm.with_canonical_z(layout.nodes[model.param_names.index("delta")][0])
     coef0 = np.concatenate([np.asarray(gm.laws[n].coefficients, float)
                             for n in gm.param_names])
-    coding = build_objective(model, layout, layout.V @ coef0,
-                             z_scale=model.name in Z_SCALE_MODELS).coding
-    lo_n, hi_n = node_box(model, layout, *model.bounds)
-    free = list(coding.free)
-    lo, hi = lo_n[free], hi_n[free]
-    phi0 = np.asarray(coding.free_of(np.asarray(layout.V @ coef0), 0.0), float)
-    names, units = _node_names(gm, layout, free)
+    obj = build_objective(model, layout, layout.V @ coef0, z_scale=z_scale)
+    coding = obj.coding
     choice = likelihood_data or ("view" if model.dynamic else "record")
-    m = check_mask(batch, mask)
+    m = check_mask(batch, None if gm.transient is None else fit_mask(batch, gm.transient))
     scale = np.max(np.where(m, np.abs(np.asarray(batch.force, float)), 0.0), axis=1)
-    b = batch
+    full, order = make_rows(batch, m, cur), record_order(m)
+    view, m_like, order_like = None, m, order
     if choice == "view":
         v = swarm_view(batch, samples_per_period=JOINT_SAMPLES_PER_PERIOD)
-        b, m = v.batch, np.asarray(v.mask, bool) & np.asarray(v.batch.mask, bool)
-    rows = make_rows(b, m, cur)
-    order = record_order(m)
-    run_model = gm.resolved_model(cur, b.xdot, b.dt, m)
-    residual = LawBlocks(run_model, coding)
-    exact = exact_tangent(run_model)
+        m_like = np.asarray(v.mask, bool) & np.asarray(v.batch.mask, bool)
+        view, order_like = make_rows(v.batch, m_like, cur), record_order(m_like)
+    lm_lo, lm_hi = bounded_box(model, layout, coding, *model.bounds)
+    D = coding.n_position
+    labels = tuple(batch.labels[i] for i in order_like)
+    problem = LawsProblem(model, layout, obj, lm_lo[:D], lm_hi[:D], lm_lo, lm_hi, full, view,
+                          np.linspace(cur.min(), cur.max(), N_LEVELS),
+                          row_labels=(tuple(batch.labels[i] for i in order), labels))
+    free = list(coding.free)
+    phi0 = np.asarray(coding.free_of(np.asarray(layout.V @ coef0), 0.0), float)
+    _check_laws(gm, phi0, layout, free)
+
+    def finish(post: Posterior) -> LawPosterior:
+        return _law_result(gm, coding, post, batch, m, cur, scale, labels, order_like, choice,
+                           m_like)
+
+    return PosteriorPlan(problem, phi0[None], choice == "view", finish)
+
+
+def _check_laws(gm: GeneralizedModel, phi0: np.ndarray, layout: Layout, free: list[int]):
+    """Warnings: laws that are not a joint optimum; node values at their bounds."""
     if gm.method != "joint":
-        warnings.warn(f"posterior of {gm.method} laws: the chains start from them, not from "
-                      "the joint least-squares optimum, and need a longer warmup",
-                      RuntimeWarning, stacklevel=2)
-    hit = at_bounds(phi0[None], lo[None], hi[None])[0]
+        warnings.warn(ResultWarning(
+            WarningKind.DOUBTFUL_START, f"posterior of {gm.method} laws: the chains start from "
+            "them, not from the joint least-squares optimum, and need a longer warmup"),
+            stacklevel=5)
+    lo, hi = node_box(gm.model, layout, *gm.model.bounds)
+    hit = at_bounds(phi0[None], lo[free][None], hi[free][None])[0]
     if hit.any():
-        warnings.warn(f"{int(hit.sum())} law node value(s) at the bounds (first: "
-                      f"{names[int(np.argmax(hit))]}): their posterior is cut by the bound",
-                      RuntimeWarning, stacklevel=2)
-    labels = tuple(batch.labels[i] for i in order)
-    data1 = jax.tree.map(lambda a: a[None], rows)
-    post = sample(residual, phi0[None], data1, lower=lo, upper=hi, names=names,
-                  labels=("laws",), row_labels=labels,
-                  sampler=sampler, noise=noise, prior=prior, key=key, seed=seed,
-                  progress=progress, unit_dim="laws", units=units,
-                  exact=None if exact is None else LawBlocks(exact, coding),
-                  linear=tuple(n for n in names if n.split("@")[0] in model.fixed_params))
-    Q = len(free)
+        names = node_names(gm.model, layout, free)[0]
+        warnings.warn(ResultWarning(
+            WarningKind.AT_BOUND, f"{int(hit.sum())} law node value(s) at the bounds (first: "
+            f"{names[int(np.argmax(hit))]}): their posterior is cut by the bound",
+            parameters=[names[k] for k in np.flatnonzero(hit)]), stacklevel=5)
+
+
+def _law_result(gm, coding, post: Posterior, batch, m, cur, scale, labels, order, choice,
+                m_like) -> LawPosterior:
+    """The :class:`LawPosterior` of the node values' draws `post`: the coefficients' draws,
+    the warnings, each record's residual RMS at the posterior-median laws."""
+    Q = len(coding.free)
     C, N = post.n_chains, post.n_draws
     coef = np.asarray(_coefficients(coding, jnp.asarray(post.theta[0].reshape(-1, Q))))
     coef = coef.reshape(1, C, N, -1)
+    coef0 = np.concatenate([np.asarray(gm.laws[n].coefficients, float)
+                            for n in gm.param_names])
     cnames, cunits = coefficient_names(gm)
     V = len(cnames)
     cpost = dataclasses.replace(
         post, names=cnames, theta=coef, theta0=coef0[None], lower=np.full((1, V), -np.inf),
         upper=np.full((1, V), np.inf), free=np.ptp(coef.reshape(-1, V), axis=0) > 0,
         param_units=cunits, linear=())
-    for line in cpost.problems() + [ln for ln in post.problems() if "integrated out" in ln]:
-        warnings.warn(line, RuntimeWarning, stacklevel=2)
+    for w in cpost.problems() + [w for w in post.problems()
+                                  if w.kind == WarningKind.BEYOND_BOUNDS]:
+        warnings.warn(w, stacklevel=4)
     # the band's noise levels: the residuals' RMS of every record at the median laws
     med = with_coefficients(gm, np.median(coef.reshape(-1, V), axis=0))
-    rms = np.asarray(med.evaluate(batch, mask=check_mask(batch, mask))["rms"], float)
+    rms = np.asarray(med.evaluate(batch, mask=m)["rms"], float)
     return LawPosterior(posterior=cpost, nodes=post, model=gm, records=labels,
                         currents=cur[order], force_scale=scale[order],
                         residual_rms=rms[order], motion=np.column_stack(
                             [np.asarray(batch.frequency, float),
                              np.asarray(batch.amplitude, float)])[order],
-                        data=choice, n_scored=m.sum(axis=1)[order])
+                        data=choice, n_scored=m_like.sum(axis=1)[order])
+
+
+register_posterior(GeneralizedModel, law_posterior_plan)

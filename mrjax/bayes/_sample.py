@@ -1,0 +1,310 @@
+"""The posterior of a problem's unknowns: :class:`Likelihood` (what a problem kind supplies)
+and :func:`sample` (the mode, the chains, the continuations of the units that missed)."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import InputError
+from ._noise import check_noise
+from ._priors import box_slope, check_priors, prior_arrays, to_box
+from ._result import Posterior
+from ._sampler import BAR, Sampler, run_chains
+from ._start import (
+    GRADIENT_TOL,
+    Target,
+    Unit,
+    collapsible,
+    find_mode,
+    gradient_error,
+    laplace,
+    start,
+    to_log,
+)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Likelihood:
+    """What a problem kind supplies to the sampler, for U units side by side.
+
+    **Fields:**
+
+    - `residual`: `residual(theta (K,), unit_data) -> ((r, mask), ...)`, a tuple of blocks of
+        residuals [N] and scored-sample masks, each (R_b, T_b) records by samples; jittable,
+        written for one unit (it is vmapped); hashable (an `eqx.Module`), so that a second
+        call reuses the compiled program.
+    - `theta0`: (U, K) the optimum of each unit, SI units: the mode search starts there.
+    - `data`: pytree whose leaves have a leading unit axis U.
+    - `lower`, `upper`: (K,) or (U, K) the box of the unknowns, SI units; an unknown with
+        `lower == upper` everywhere is held.
+    - `names`: (K,) the unknowns' names; `units` (K,) their SI units (or None).
+    - `labels`: (U,) unit labels (default `"0"`, `"1"`, ...); `row_labels` the R records of a
+        unit (the `record` dim of `noise_sigma` where R > 1); `unit_dim` the unit dimension's
+        name (`"condition"`).
+    - `gauge`: names of the unknowns to hold first where the data leave a direction
+        undetermined (e.g. a z-scale symmetry's free parameter).
+    - `exact`: where `residual`'s derivatives are an approximation (an implicit scheme's
+        tangent), the residual with exact ones: the approximation is checked around the mode
+        and replaced where it is off by more than `GRADIENT_TOL` (`Posterior.gradient_error`).
+    - `linear`: names of unknowns the residuals are affine in with a regressor no unknown
+        changes: integrated out in closed form where their prior is flat and their mode lies
+        well inside their box, and drawn from their conditional (`Posterior.linear`).
+    - `dynamic`: a dynamic model's residuals (one sequential integration): the sampler's
+        defaults for it (`Sampler.for_model`).
+    """
+
+    residual: Callable
+    theta0: Any
+    data: Any
+    lower: Any
+    upper: Any
+    names: tuple[str, ...]
+    units: tuple[str, ...] | None = None
+    labels: tuple[str, ...] | None = None
+    row_labels: tuple[str, ...] | None = None
+    unit_dim: str = "condition"
+    gauge: tuple[str, ...] = ()
+    exact: Callable | None = None
+    linear: tuple[str, ...] = ()
+    dynamic: bool = False
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Setup:
+    """The checked arrays of a :class:`Likelihood`, its priors and the start."""
+
+    names: tuple[str, ...]
+    labels: tuple[str, ...]
+    theta0: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    free: tuple[int, ...]
+    rows: tuple[int, ...]
+    priors: dict
+    prior_data: tuple
+
+
+def _checked(lk: Likelihood, noise: str, prior: Mapping[str, Any] | None) -> _Setup:
+    names = tuple(str(n) for n in lk.names)
+    K = len(names)
+    theta0 = np.asarray(lk.theta0, float)
+    if theta0.ndim != 2 or theta0.shape[1] != K:
+        raise InputError(f"theta0 must be (units, {K}), got shape {theta0.shape}")
+    U = theta0.shape[0]
+    lo = np.broadcast_to(np.asarray(lk.lower, float), (U, K))
+    hi = np.broadcast_to(np.asarray(lk.upper, float), (U, K))
+    if np.any(~np.isfinite(lo)) or np.any(~np.isfinite(hi)) or np.any(lo > hi):
+        raise InputError("the box of the unknowns must be finite with lower <= upper")
+    if not np.all(np.isfinite(theta0)):
+        raise InputError("the optimum theta0 must be finite")
+    priors = check_priors(prior, names)
+    kind, a, b, lo, hi = prior_arrays(priors, names, lo, hi)
+    free = tuple(int(j) for j in np.flatnonzero(np.any(hi > lo, axis=0)))
+    if not free:
+        raise InputError("no free unknowns: every lower bound equals its upper bound")
+    labels = tuple(map(str, lk.labels)) if lk.labels is not None else tuple(map(str, range(U)))
+    if len(labels) != U:
+        raise InputError(f"{len(labels)} labels for {U} units")
+    theta0 = np.clip(theta0, lo, hi)
+    shapes = jax.eval_shape(lk.residual, jnp.asarray(theta0[0]),
+                            jax.tree.map(lambda x: x[0], lk.data))
+    return _Setup(names, labels, theta0, lo, hi, free, tuple(int(s[0].shape[0]) for s in shapes),
+                  priors, (jnp.asarray(kind), jnp.asarray(a), jnp.asarray(b)))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Prepared:
+    """The log-density's target, every unit's arrays, start `z0` and metric `L`, the box
+    after the start (held unknowns), and the gradient check."""
+
+    target: Target
+    units: Unit
+    z0: np.ndarray
+    L: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    gradient_error: float | None
+
+
+def _at_mode(lk: Likelihood, su: _Setup, st, every, target: Target, z0, L) -> _Prepared:
+    """From the start: the mode (a damped Newton search from the optimum, which is the
+    least-squares one, not this posterior's mode; the Hessian there replaces the Gauss-Newton
+    metric), then the log coordinates and the linear unknowns integrated out, both decided
+    there."""
+    free, U = su.free, su.theta0.shape[0]
+
+    def arrays(moved, lin):
+        return Unit(data=lk.data, lo=jnp.asarray(st.lo[:, moved]),
+                    hi=jnp.asarray(st.hi[:, moved]), soft=jnp.asarray(st.soft[:, moved]),
+                    log=jnp.asarray(st.log[:, moved]), theta=jnp.asarray(su.theta0),
+                    regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians),
+                    masks=tuple(jnp.asarray(m) for m in st.masks))
+
+    z, m = laplace(*jax.device_get(find_mode(target, su.prior_data, arrays(every, []),
+                                             jnp.asarray(z0), jnp.asarray(L))), z0, L)
+    Kf, Km = len(free), len(every)
+    cov = m @ np.swapaxes(m, 1, 2)
+    with np.errstate(invalid="ignore"):
+        sd_u = np.full((U, Kf), np.nan)
+        sd_u[:, every] = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)[:, :Km])
+    u_mode = np.zeros((U, Kf))
+    u_mode[:, every] = z[:, :Km]
+    centre = np.asarray(to_box(u_mode, st.lo, st.hi, st.soft, st.log))
+    sd = sd_u * box_slope(u_mode, st.lo, st.hi, st.soft, st.log)
+    st, z, cov = to_log(st, z, cov, every, centre, sd)  # positive unknowns far above 0
+    lin = collapsible(lk.residual, su.theta0, lk.data, free, st, su.prior_data[0],
+                      [su.names.index(n) for n in lk.linear if n in su.names], centre, sd)
+    moved = [k for k in every if k not in lin]
+    keep = np.concatenate([[every.index(k) for k in moved],
+                           np.arange(Km, z.shape[1])]).astype(int)
+    target = dataclasses.replace(target, free=tuple(free[k] for k in moved),
+                                 linear=tuple(free[k] for k in lin))
+    lo, hi = su.lo.copy(), su.hi.copy()
+    lo[:, list(free)], hi[:, list(free)] = st.lo, st.hi
+    return _Prepared(target, arrays(moved, lin), z[:, keep],
+                     np.linalg.cholesky(cov[:, keep][:, :, keep]), lo, hi, None)
+
+
+def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> _Prepared:
+    """The start (`mrjax.bayes._start.start`: the optimum and the Gauss-Newton covariance of
+    the residuals there, one unknown held per undetermined direction), moved onto the mode;
+    with an approximate derivative checked there and replaced by the exact one where off."""
+    free = su.free
+    st = start(lk.residual, su.theta0, su.lo[:, free], su.hi[:, free], lk.data, free, noise,
+               su.names, tuple(lk.gauge))
+    Kf = len(free)
+    # an unknown held in every unit is no unknown of the sampler: neither a dimension nor a
+    # forward-mode tangent
+    every = [k for k in range(Kf) if not st.held[:, k].all()]
+    keep = np.concatenate([every, np.arange(Kf, st.z0.shape[1])]).astype(int)
+    # the sampler runs in whitened coordinates w, z = z0 + L w with L L^T the starting
+    # covariance: every w is O(1), so the regularisation of the adapted mass matrix (towards
+    # 1e-3 I) does not swamp unknowns whose posterior spans a tiny part of their box
+    z0, L = st.z0[:, keep], np.linalg.cholesky(st.imm[:, keep][:, :, keep])
+    target = Target(residual=lk.residual, free=tuple(free[k] for k in every), rows=su.rows,
+                    noise=noise, forward=sampler.gradient == "forward")
+    prep = _at_mode(lk, su, st, every, target, z0, L)
+    if lk.exact is None:
+        return prep
+    err = float(gradient_error(prep.target, su.prior_data, prep.units, jnp.asarray(prep.z0),
+                               jnp.asarray(prep.L)))
+    if not err <= GRADIENT_TOL:  # all again from the start, exactly: the approximate
+        # gradient's "mode" may be far from the posterior's
+        prep = _at_mode(lk, su, st, every, dataclasses.replace(target, residual=lk.exact),
+                        z0, L)
+    return dataclasses.replace(prep, gradient_error=err)
+
+
+def _unit_keys(key: Any, units: np.ndarray, chains: int, round_: int):
+    """Each unit's chain keys: `split(fold_in(key, unit), chains)` in the first round,
+    `fold_in` the round number on top in a continuation."""
+    def one(i):
+        k = jax.random.fold_in(key, i)
+        return jax.random.split(k if round_ == 0 else jax.random.fold_in(k, round_), chains)
+
+    return jax.vmap(one)(jnp.asarray(units))
+
+
+def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys, show: bool):
+    """The chains of the units `rows`, with a progress bar where `show`; host arrays."""
+    bar = None
+    if show:
+        from tqdm.auto import tqdm  # imported here: only a shown bar needs it
+
+        total = (sampler.warmup + sampler.draws) * rows.size * sampler.chains
+        bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
+                   leave=False, file=sys.stderr)
+        BAR[0] = bar
+    units = jax.tree.map(lambda a: a[rows], prep.units)
+    try:
+        out = run_chains(prep.target, su.prior_data, sampler, show, units,
+                         jnp.asarray(prep.z0[rows]), jnp.asarray(prep.L[rows]), keys)
+        out = jax.device_get(jax.block_until_ready(out))
+    finally:
+        BAR[0] = None
+        if bar is not None:
+            bar.close()
+    return out
+
+
+def _posterior(lk: Likelihood, su: _Setup, prep: _Prepared, sampler: Sampler, noise: str,
+               out, seed: Any, timings: dict[str, float]) -> Posterior:
+    theta, sigma, rho, (lp, div, steps, acc), step_size, warm_steps = out
+    U = su.theta0.shape[0]
+    return Posterior(
+        names=su.names, labels=su.labels, unit_dim=lk.unit_dim,
+        row_labels=None if lk.row_labels is None else tuple(map(str, lk.row_labels)),
+        theta=np.asarray(theta), sigma=np.asarray(sigma),
+        rho=None if rho is None else np.asarray(rho), lp=np.asarray(lp),
+        diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
+        accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
+        warmup_steps=np.asarray(warm_steps, int), warmup_length=np.full(U, sampler.warmup),
+        rounds=np.zeros(U, int), gradient_error=prep.gradient_error,
+        linear=tuple(su.names[j] for j in prep.target.linear), theta0=su.theta0,
+        lower=prep.lo, upper=prep.hi, free=np.isin(np.arange(len(su.names)), su.free),
+        noise=noise, prior={n: p.describe() for n, p in su.priors.items()}, sampler=sampler,
+        seed=seed, timings=timings, param_units=None if lk.units is None else tuple(lk.units))
+
+
+def sample(
+    likelihood: Likelihood,
+    *,
+    sampler: Sampler | None = None,
+    noise: str = "iid",
+    prior: Mapping[str, Any] | None = None,
+    key: int | Any = 0,
+    progress: bool | None = False,
+) -> Posterior:
+    """Sample the posterior of a problem's unknowns with NUTS, on every unit at once.
+
+    The start is the optimum `likelihood.theta0` with the Gauss-Newton covariance of the
+    residuals there (one unknown held per direction the data leave undetermined); a damped
+    Newton search moves it onto the posterior's mode (the noise model, the prior and the soft
+    box move it), and the chains start around the mode with the inverse Hessian there as
+    their mass matrix. Units whose chains miss R-hat <= 1.01, bulk or tail ESS >= 400, or
+    diverge, are continued (`Sampler.continuations`).
+
+    **Arguments:** `likelihood` the problem's :class:`Likelihood`; `sampler` the
+    :class:`Sampler` (default `Sampler()`, its defaults chosen for the model's kind); `noise`
+    `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`); `prior` {name: prior} (see
+    `mrjax.bayes.parse_prior`; default flat on the box); `key` an integer seed or a PRNG key
+    (each unit's chains use `fold_in(key, unit)`: same key, same draws); `progress` a tqdm
+    bar (None: only on a terminal).
+
+    **Returns:** a :class:`mrjax.bayes.Posterior` (`timings["mode"]`, `["sample"]` [s]).
+
+    Raises :class:`mrjax.InputError` for bad settings, an unknown noise model or prior, or
+    shapes that do not match.
+    """
+    sampler = (sampler or Sampler()).for_model(likelihood.dynamic).check()
+    noise = check_noise(noise)
+    su = _checked(likelihood, noise, prior)
+    t0 = time.perf_counter()
+    prep = _prepare(likelihood, su, sampler, noise)
+    t_mode = time.perf_counter() - t0
+    seed = int(key) if isinstance(key, (int, np.integer)) and not isinstance(key, bool) else None
+    key = jax.random.key(seed) if seed is not None else key
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    U = su.theta0.shape[0]
+    t0 = time.perf_counter()
+    every = np.arange(U)
+    out = _draw(prep, su, sampler, every, _unit_keys(key, every, sampler.chains, 0), show)
+    post = _posterior(likelihood, su, prep, sampler, noise, out, seed, {})
+    for r in range(1, sampler.continuations + 1):
+        rows = np.flatnonzero(post.unconverged())
+        if rows.size == 0:
+            break
+        s_r = sampler.continued(r, bool(post.diverging[rows].any()))
+        out = _draw(prep, su, s_r, rows, _unit_keys(key, rows, sampler.chains, r), show)
+        post = post.with_units(rows, _posterior(likelihood, su, prep, s_r, noise, out, seed,
+                                                {}), r)
+    wall = time.perf_counter() - t0 + t_mode
+    return dataclasses.replace(post, timings={"sample": wall, "mode": t_mode})
