@@ -15,6 +15,7 @@ import warnings
 from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir
+from ._export import add_parser as _export_parser
 from ._parse import (
     POSTERIOR_DEFAULTS,
     Parser,
@@ -37,7 +38,7 @@ from ._parse import (
 CACHE_ENV = "MRJAX_CACHE_DIR"
 
 #: The commands that write an output directory (`--out`, `--overwrite`).
-WRITERS = ("fit", "predict", "compare", "inspect", "reproduce")
+WRITERS = ("fit", "predict", "compare", "inspect", "reproduce", "export")
 
 
 def _fit_parser(sub, common) -> None:
@@ -238,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     _predict_parser(sub, common)
     _compare_parser(sub, common)
     _inspect_parser(sub, common)
+    _export_parser(sub, common)
     _misc_parsers(sub, common)
     return parser
 

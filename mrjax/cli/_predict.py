@@ -46,6 +46,33 @@ def _csv(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The columns of `predicted.csv`, one row per sample of every record.
+SAMPLE_COLUMNS = ("condition", "time_s", "displacement_m", "velocity_m_s", "current", "measured",
+                  "predicted")
+
+
+def _commands(batch) -> np.ndarray:
+    """The command (C, T) each sample sees: its per-sample command where the record has one,
+    else the record's current [A]."""
+    kind = np.asarray(batch.command_kind)
+    cur = np.broadcast_to(np.asarray(batch.current, float)[:, None], np.shape(batch.x))
+    return np.where(kind[:, None] > 0, np.asarray(batch.command, float), cur)
+
+
+def _samples_csv(batch, predicted: np.ndarray) -> bytes:
+    """`predicted.csv`: every real sample of every record (`SAMPLE_COLUMNS`), floats round-trip
+    exact (repr), so that a check against another implementation sees mrjax's numbers."""
+    cols = [np.asarray(a, float) for a in (batch.t, batch.x, batch.xdot, _commands(batch),
+                                            batch.force, predicted)]
+    real = np.asarray(batch.mask, bool)
+    lines = [",".join(SAMPLE_COLUMNS)]
+    for i, keep in enumerate(real):
+        label = csv_cell(batch.labels[i])
+        cells = [[csv_cell(v) for v in c[i, keep].tolist()] for c in cols]
+        lines += [",".join((label, *row)) for row in zip(*cells)]
+    return ("\n".join(lines) + "\n").encode()
+
+
 def _table(rows: list[dict], model: str) -> str:
     def num(v, scale=1.0):
         return None if v is None else v * scale
@@ -89,10 +116,14 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     ev = gm.evaluate(batch)
     rms, nrmse = np.asarray(ev["rms"], float), np.asarray(ev["nrmse"], float)
     rows = _rows(batch, rms, nrmse)
+    used = gm.resolved_model(_commands(batch), batch.xdot, batch.dt, batch.mask)
     report = {"fit": str(args.fit), "model": model, "mrjax_version": __version__,
               "median_rms_N": float(np.nanmedian(rms)) if np.any(np.isfinite(rms)) else None,
+              "integration": {"scheme": used.scheme, "substeps": used.substeps}
+              if used.dynamic else None,
               "conditions": rows}
-    files = {"predict.json": json_bytes(report), "predict.csv": _csv(rows).encode()}
+    files = {"predict.json": json_bytes(report), "predict.csv": _csv(rows).encode(),
+             "predicted.csv": _samples_csv(batch, np.asarray(ev["predicted"], float))}
     if not args.no_plots:
         say("drawing figures...")
         use_agg()
