@@ -11,8 +11,8 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir, json_bytes
-from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from .._warnings import WarningKind
+from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Source
 from ..engine import Chunks, Polish, Swarm
 from ..fitting import RUNTIME_BYTES, fit
@@ -262,7 +262,7 @@ def _run_identify(args, model, bounds, batch, out: OutputDir) -> int:
     doc = {"model": model.name, "model_source": source_of(model),
            "mrjax_version": __version__, "method": "identify",
            "command_unit": gm.command_unit, "lag_1_s": gm.lag,
-           "timings_s": gm.info.get("timings"), "conditions": conds,
+           "timings_s": gm.report.timings, "conditions": conds,
            "generalized": gm.to_dict()}
     files = {"fit.json": json_bytes(doc), "fit.csv": laws_csv(gm).encode()}
     if not args.no_plots:

@@ -38,10 +38,11 @@ from ._problem import TestsProblem as TestsProblem
 from ._problem import default_restarts as default_restarts
 from ._problem import fit_swarm as fit_swarm
 from ._problem import tests_problem as tests_problem
+from ._result import SPREAD_MARGIN as SPREAD_MARGIN
 from ._result import FitResult as FitResult
 from ._result import save as save
+from ._result import spread_warnings as spread_warnings
 from ._retry import RETRY_DONORS as RETRY_DONORS
-from ._retry import SPREAD_MARGIN as SPREAD_MARGIN
 from ._retry import neighbours as neighbours
 from ._retry import retry_starts as retry_starts
-from ._retry import spread_warnings as spread_warnings
+from ._run import polish_fit as polish_fit

@@ -81,8 +81,8 @@ from ._plan import (
     results_bytes,
 )
 from ._problem import TestsProblem
-from ._result import FitResult
-from ._retry import merge, neighbours, retry_starts
+from ._result import FitResult, merge
+from ._retry import neighbours, retry_starts
 from ._run import Run, fit_chunk, make_run, problem_of, uncertainty_fields, wants_retry
 
 

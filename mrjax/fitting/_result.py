@@ -16,10 +16,10 @@ import numpy as np
 from .. import __version__
 from .._errors import InputError
 from .._io import atomic_output, csv_cell, exact_decode, exact_encode, json_safe
+from .._warnings import ResultWarning, WarningKind
 from ..data import ESTIMATED_FIELDS, Batch
 from ..models import AbstractModel, resolve_model, source_of
-from ..refine import Status
-from ._retry import spread_warnings
+from ..refine import CORR_LIMIT, Status
 
 
 def _finite_median(a: np.ndarray) -> float:
@@ -224,11 +224,12 @@ class FitResult:
         return (format_table(rows, head, floatfmt=fmt)
                 + f"\n{self.model.name} ({self.method}, {self.swarm_mode}): {self.n_conditions} "
                 f"conditions, median RMS {med:.2f} N, median NRMSE {100 * medn:.2f} %"
-                + "".join(f"\nwarning: {w['message']}" for w in self.warnings()))
+                + "".join(f"\nwarning: {w.message}" for w in self.warnings()))
 
-    def warnings(self, generalized: Any = None) -> list[dict[str, Any]]:
-        """What makes these results doubtful, as lmfit's fit report says it: one entry per
-        kind, `{"kind", "message", "conditions": [labels], "parameters": [names]}`.
+    def warnings(self, generalized: Any = None) -> list[ResultWarning]:
+        """What makes these results doubtful, as lmfit's fit report says it: one
+        :class:`mrjax.ResultWarning` per kind (its `kind`, `message`, `conditions` and
+        `parameters`).
 
         - `"at_bound"`: a parameter within `AT_BOUND` (0.5 %) of the search box's width of one
             of its bounds and, where it has a std-error, within 1.96 std-errors of it (equal
@@ -243,7 +244,7 @@ class FitResult:
             (`GeneralizedModel.law_warnings`).
 
         **Returns:** the list (empty when nothing is doubtful); also `fit.json`'s `"warnings"`
-        and the last lines of :meth:`table`.
+        (`ResultWarning.to_dict`) and the last lines of :meth:`table`.
         """
         return _warnings(self, generalized)
 
@@ -297,7 +298,7 @@ class FitResult:
             doc["generalized"] = generalized.to_dict()
         if posterior is not None:
             doc["posterior"] = posterior.to_dict()
-        doc["warnings"] = self.warnings(generalized)
+        doc["warnings"] = [w.to_dict() for w in self.warnings(generalized)]
         return json_safe(doc)
 
     def _estimated_names(self, i: int) -> list[str]:
@@ -326,6 +327,9 @@ class FitResult:
         return "\n".join(out) + "\n"
 
 
+#: The two polished starts of a test (the swarm's and the retry's) disagree when their RMS
+#: differ by more than this fraction of the lower: a warning (`spread_warnings`).
+SPREAD_MARGIN = 0.05
 #: A parameter within this fraction of its search box's width of a bound is "at a bound".
 AT_BOUND = 5e-3
 
@@ -336,51 +340,69 @@ def _who(labels: Sequence[str]) -> str:
     return f"{n} test{'s' if n != 1 else ''} (first: {labels[0]!r})"
 
 
-def _warnings(res: FitResult, generalized: Any) -> list[dict[str, Any]]:
+def _warnings(res: FitResult, generalized: Any) -> list[ResultWarning]:
     """:meth:`FitResult.warnings`."""
-    out: list[dict[str, Any]] = []
+    out = _at_bound(res) + _not_identifiable(res) + spread_warnings(res)
+    if generalized is not None:  # a GeneralizedModel (not imported: generalize uses fitting)
+        out += [ResultWarning(w.kind, w.message, conditions=res.labels, parameters=w.parameters)
+                for w in generalized.law_warnings(res.current)]
+    return out
+
+
+def _at_bound(res: FitResult) -> list[ResultWarning]:
+    if res.bounds is None:
+        return []
     names = res.param_names
     theta = np.asarray(res.theta, float)
-    if res.bounds is not None:
-        lo = np.asarray(res.bounds["lower"], float)
-        hi = np.asarray(res.bounds["upper"], float)
-        # near a bound, and the data cannot tell it from the bound (within its 95 % interval,
-        # or no std-error): a small value resolved far from 0 in a wide box is not flagged
-        se = np.asarray(res.stderr, float)
-        tol = AT_BOUND * (hi - lo)
-        unsure = ~np.isfinite(se)
-        d_lo, d_hi = theta - lo, hi - theta
-        near_lo = (d_lo <= tol) & (unsure | (d_lo <= 1.96 * se)) & (hi > lo)
-        near_hi = (d_hi <= tol) & (unsure | (d_hi <= 1.96 * se)) & (hi > lo)
-        at = near_lo | near_hi
-        if at.any():
-            rows, cols = np.nonzero(at)
-            i, j = int(rows[0]), int(cols[0])
-            side = "lower" if near_lo[i, j] else "upper"
-            params = [names[k] for k in np.flatnonzero(at.any(axis=0))]
-            tests = [res.labels[k] for k in np.flatnonzero(at.any(axis=1))]
-            out.append({
-                "kind": "at_bound",
-                "message": f"{', '.join(params)} at a bound of the search box in "
-                f"{_who(tests)}: {names[j]} = {theta[i, j]:.4g} at its {side} bound "
-                f"{(lo if side == 'lower' else hi)[j]:.4g}; the optimum may lie outside the box: "
-                "widen it (--bounds) or check the data",
-                "conditions": tests, "parameters": params})
+    lo = np.asarray(res.bounds["lower"], float)
+    hi = np.asarray(res.bounds["upper"], float)
+    # near a bound, and the data cannot tell it from the bound (within its 95 % interval,
+    # or no std-error): a small value resolved far from 0 in a wide box is not flagged
+    se = np.asarray(res.stderr, float)
+    tol = AT_BOUND * (hi - lo)
+    unsure = ~np.isfinite(se)
+    d_lo, d_hi = theta - lo, hi - theta
+    near_lo = (d_lo <= tol) & (unsure | (d_lo <= 1.96 * se)) & (hi > lo)
+    near_hi = (d_hi <= tol) & (unsure | (d_hi <= 1.96 * se)) & (hi > lo)
+    at = near_lo | near_hi
+    if not at.any():
+        return []
+    rows, cols = np.nonzero(at)
+    i, j = int(rows[0]), int(cols[0])
+    side = "lower" if near_lo[i, j] else "upper"
+    params = [names[k] for k in np.flatnonzero(at.any(axis=0))]
+    tests = [res.labels[k] for k in np.flatnonzero(at.any(axis=1))]
+    return [ResultWarning(
+        WarningKind.AT_BOUND,
+        f"{', '.join(params)} at a bound of the search box in {_who(tests)}: {names[j]} = "
+        f"{theta[i, j]:.4g} at its {side} bound {(lo if side == 'lower' else hi)[j]:.4g}; the "
+        "optimum may lie outside the box: widen it (--bounds) or check the data",
+        conditions=tests, parameters=params)]
+
+
+def _not_identifiable(res: FitResult) -> list[ResultWarning]:
+    """Parameters on a null direction of J^T J (no std-error) or correlated above
+    `CORR_LIMIT` with another (a std-error of the combination the data determine)."""
     bad = ~np.asarray(res.identifiable, bool)
-    if bad.any():
-        params = [names[k] for k in np.flatnonzero(bad.any(axis=0))]
-        tests = [res.labels[k] for k in np.flatnonzero(bad.any(axis=1))]
-        out.append({
-            "kind": "not_identifiable",
-            "message": f"{', '.join(params)} not identifiable in {_who(tests)}: a null "
-            "direction of J^T J or a near-perfect correlation with another parameter, so the "
-            "data do not determine their values (null std-errors)",
-            "conditions": tests, "parameters": params})
-    out.extend(spread_warnings(res))
-    if generalized is not None:  # a GeneralizedModel (not imported: generalize uses fitting)
-        for w in generalized.law_warnings(res.current):
-            out.append(dict(w, conditions=list(res.labels)))
-    return out
+    if not bad.any():
+        return []
+    names = res.param_names
+    params = [names[k] for k in np.flatnonzero(bad.any(axis=0))]
+    tests = [res.labels[k] for k in np.flatnonzero(bad.any(axis=1))]
+    finite = np.isfinite(np.asarray(res.stderr, float)) & bad
+    if not finite.any():
+        why = "a null direction of J^T J: the data do not determine them (no std-errors)"
+    elif finite[bad].all():
+        why = (f"correlated above {CORR_LIMIT} with another parameter: the data determine a "
+               "combination of them, not each (their std-errors are finite but describe that "
+               "ridge)")
+    else:
+        why = ("a null direction of J^T J (no std-error) or a correlation above "
+               f"{CORR_LIMIT} with another parameter (a finite std-error along a ridge): the "
+               "data do not determine each of them")
+    return [ResultWarning(WarningKind.NOT_IDENTIFIABLE,
+                          f"{', '.join(params)} not identifiable in {_who(tests)}: {why}",
+                          conditions=tests, parameters=params)]
 
 
 def save(
@@ -396,3 +418,50 @@ def save(
              "fit.csv": result.to_csv().encode()}
     files.update(extra_files or {})
     return atomic_output(out_dir, files)
+
+
+def spread_warnings(result: FitResult) -> list[ResultWarning]:
+    """The warning (lmfit's fit-report style) of the tests whose polished starts disagree by
+    more than `SPREAD_MARGIN` (relative RMS): their error surface has more than one optimum,
+    the lower is reported and a still lower one may exist (try more `restarts`). An empty
+    list without a retry.
+
+    **Returns:** `[ResultWarning(LOCAL_OPTIMUM, ...)]` or `[]`.
+    """
+    s = result.starts_rms
+    if s is None or np.ndim(s) != 2 or s.shape[1] < 2:
+        return []
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lo, hi = np.nanmin(s, axis=1), np.nanmax(s, axis=1)
+        bad = ~(hi <= (1.0 + SPREAD_MARGIN) * lo)
+    bad &= np.isfinite(lo)
+    if not bad.any():
+        return []
+    idx = np.flatnonzero(bad)
+    tests: Sequence[str] = [result.labels[i] for i in idx]
+    i = int(idx[np.argmax((hi - lo)[idx] / lo[idx])])
+    scale = result.nrmse[i] / result.rms[i] if result.rms[i] > 0 else np.nan
+    return [ResultWarning(
+        WarningKind.LOCAL_OPTIMUM,
+        f"the swarm's start and the retry from a neighbour's optimum end more than "
+        f"{100 * SPREAD_MARGIN:g} % apart in {len(tests)} test{'s' if len(tests) != 1 else ''} "
+        f"(first: {tests[0]!r}; widest: {result.labels[i]!r}, NRMSE "
+        f"{100 * lo[i] * scale:.2f} % vs {100 * hi[i] * scale:.2f} %): a local optimum is "
+        "possible there; the lower is reported (try more restarts)",
+        conditions=tests)]
+
+
+def merge(first: FitResult, retry: FitResult) -> FitResult:
+    """Per test the better (lower RMS on the full record) of the first fit and its retry, and
+    `starts_rms` (C, 2): both RMS [N]. The swarm's figures (`pso_rms`, generations, history)
+    stay the first fit's; the polish's (parameters, RMS, steps, status) are the winner's."""
+    better = retry.rms < first.rms  # NaN-safe: a non-finite retry never wins
+    changes: dict[str, Any] = {}
+    for name in ("theta", "rms", "nrmse", "polish_steps"):
+        a, b = getattr(first, name), getattr(retry, name)
+        shape = (-1,) + (1,) * (np.ndim(a) - 1)
+        changes[name] = np.where(better.reshape(shape), b, a)
+    changes["polish_status"] = tuple(r if w else f for f, r, w in
+                                     zip(first.polish_status, retry.polish_status, better))
+    changes["starts_rms"] = np.stack([first.rms, retry.rms], axis=1)
+    return dataclasses.replace(first, **changes)

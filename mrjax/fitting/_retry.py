@@ -16,15 +16,12 @@ test are chosen from the whole batch, so the result does not depend on the chunk
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # `FitResult` writes the warnings of this module
+if TYPE_CHECKING:
     from ._problem import TestsProblem
-    from ._result import FitResult
 
 #: Donors per test: the optima of this many nearest tests are ranked on its view.
 RETRY_DONORS = 16
@@ -33,9 +30,6 @@ RETRY_DONORS = 16
 CURRENT_WEIGHT = 4.0
 #: Distances computed per block of at most this many pairs (memory of a fleet's retry).
 NEIGHBOUR_BLOCK = 4_000_000
-#: The two polished starts of a test (the swarm's and the retry's) disagree when their RMS
-#: differ by more than this fraction of the lower: a warning (`spread_warnings`).
-SPREAD_MARGIN = 0.05
 
 
 def _feature(values: np.ndarray, log: bool) -> np.ndarray:
@@ -112,49 +106,3 @@ def retry_starts(problem: TestsProblem, donors: np.ndarray, theta: np.ndarray,
     return th[pick, best], cand_rows[pick, best]
 
 
-def merge(first: FitResult, retry: FitResult) -> FitResult:
-    """Per test the better (lower RMS on the full record) of the first fit and its retry, and
-    `starts_rms` (C, 2): both RMS [N]. The swarm's figures (`pso_rms`, generations, history)
-    stay the first fit's; the polish's (parameters, RMS, steps, status) are the winner's."""
-    better = retry.rms < first.rms  # NaN-safe: a non-finite retry never wins
-    changes: dict[str, Any] = {}
-    for name in ("theta", "rms", "nrmse", "polish_steps"):
-        a, b = getattr(first, name), getattr(retry, name)
-        shape = (-1,) + (1,) * (np.ndim(a) - 1)
-        changes[name] = np.where(better.reshape(shape), b, a)
-    changes["polish_status"] = tuple(r if w else f for f, r, w in
-                                     zip(first.polish_status, retry.polish_status, better))
-    changes["starts_rms"] = np.stack([first.rms, retry.rms], axis=1)
-    return dataclasses.replace(first, **changes)
-
-
-def spread_warnings(result: FitResult) -> list[dict[str, Any]]:
-    """The warning (lmfit's fit-report style) of the tests whose polished starts disagree by
-    more than `SPREAD_MARGIN` (relative RMS): their error surface has more than one optimum,
-    the lower is reported and a still lower one may exist (try more `restarts`). An empty
-    list without a retry.
-
-    **Returns:** `[{"kind": "local_optimum", "message", "conditions", "parameters": []}]` or
-    `[]`.
-    """
-    s = result.starts_rms
-    if s is None or np.ndim(s) != 2 or s.shape[1] < 2:
-        return []
-    with np.errstate(invalid="ignore", divide="ignore"):
-        lo, hi = np.nanmin(s, axis=1), np.nanmax(s, axis=1)
-        bad = ~(hi <= (1.0 + SPREAD_MARGIN) * lo)
-    bad &= np.isfinite(lo)
-    if not bad.any():
-        return []
-    idx = np.flatnonzero(bad)
-    tests: Sequence[str] = [result.labels[i] for i in idx]
-    i = int(idx[np.argmax((hi - lo)[idx] / lo[idx])])
-    scale = result.nrmse[i] / result.rms[i] if result.rms[i] > 0 else np.nan
-    return [{
-        "kind": "local_optimum",
-        "message": f"the swarm's start and the retry from a neighbour's optimum end more than "
-        f"{100 * SPREAD_MARGIN:g} % apart in {len(tests)} test{'s' if len(tests) != 1 else ''} "
-        f"(first: {tests[0]!r}; widest: {result.labels[i]!r}, NRMSE "
-        f"{100 * lo[i] * scale:.2f} % vs {100 * hi[i] * scale:.2f} %): a local optimum is "
-        "possible there; the lower is reported (try more restarts)",
-        "conditions": list(tests), "parameters": []}]

@@ -151,3 +151,24 @@ def make_run(model: AbstractModel, n_conditions: int, *, swarm: Swarm | None,
     return Run(swarm=swarm, polish=polish,
                uncertainty=polish.uncertainty if polish is not None else True, seed=seed,
                bounds=bounds, transient=transient, chunks=chunks or Chunks(), progress=progress)
+
+
+def polish_fit(result: FitResult, data: Batch, *, polish: Polish = Polish(retry=False)
+               ) -> FitResult:
+    """`result` (e.g. a swarm-only fit, `mrjax.fit(..., polish=None)`) polished on its records
+    `data` by the engine's polish stage from its parameters, in its bounds and over its scored
+    samples; the swarm's figures kept, `pso_rms` the start's RMS [N]. The retry from the
+    neighbours' optima does not run (see `mrjax.fit`)."""
+    bounds = None if result.bounds is None else (result.bounds["lower"], result.bounds["upper"])
+    run = make_run(result.model, data.n_conditions, swarm=None, polish=polish, key=0,
+                   bounds=bounds, transient=result.transient)
+    problem = problem_of(result.model, data, run, checked=True)
+    out = solve(problem, swarm=None, polish=polish, uncertainty=polish.uncertainty,
+                start=np.asarray(result.theta, float))
+    fresh = assemble(problem, out, run)
+    keep = ("model", "method", "swarm_mode", "seed", "generations", "stopped_by_criterion",
+            "history", "timings")
+    return dataclasses.replace(
+        fresh, pso_rms=out.start.rms[: result.n_conditions], method="pso+lm"
+        if result.method == "pso" else result.method,
+        **{k: getattr(result, k) for k in keep if k not in ("method",)})

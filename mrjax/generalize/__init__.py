@@ -126,6 +126,7 @@ from ._laws import lag_current as lag_current
 from ._laws import nodes as nodes
 from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
+from ._model import LawReport as LawReport
 from ._model import LawUncertainty as LawUncertainty
 from ._posterior import NOISE_RULE as NOISE_RULE
 from ._posterior import LawPosterior as LawPosterior

@@ -165,11 +165,10 @@ def choose_forms(model: AbstractModel, theta: np.ndarray | None, current: np.nda
     return LawForms(tuple(kinds), tuple(degs), tuple(scales), criteria)
 
 
-def forms_info(forms: LawForms, names: tuple[str, ...]) -> dict[str, Any]:
-    """The `GeneralizedModel.info` entries of the law forms: `law_forms` (name -> form) and,
-    for forms chosen by the data, `law_criteria` (name -> {form: BIC})."""
-    out: dict[str, Any] = {"law_forms": {n: forms.form(p) for p, n in enumerate(names)}}
-    if forms.criteria is not None:
-        out["law_choice"] = "auto (lowest BIC of the per-test values)"
-        out["law_criteria"] = forms.criteria
-    return out
+def forms_choice(forms: LawForms) -> dict[str, Any]:
+    """The `mrjax.generalize.LawReport` fields of the law forms: `law_choice` and, for forms
+    chosen by the data, `law_criteria` (name -> {form: BIC})."""
+    if forms.criteria is None:
+        return {"law_choice": "given"}
+    return {"law_choice": "auto (lowest BIC of the per-test values)",
+            "law_criteria": forms.criteria}

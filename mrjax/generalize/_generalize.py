@@ -17,10 +17,10 @@ from ..engine import Polish, Swarm, check_settings
 from ..fitting import FitResult
 from ..models import AbstractModel, resolve_model
 from ._coding import Layout, bounded_box, build_objective, law_values, total_rms_of
-from ._forms import choose_forms, forms_info
+from ._forms import choose_forms, forms_choice
 from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
-from ._model import GeneralizedModel, LawUncertainty
+from ._model import GeneralizedModel, LawReport, LawUncertainty
 from ._rows import make_rows, packed_rows
 from ._two_step import covariances, two_step_coefficients
 
@@ -77,7 +77,7 @@ class TwoStep:
 def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
     """The two-step laws and everything the joint stage starts from.
 
-    **Returns:** `(TwoStep, weighting used, support, info)`."""
+    **Returns:** `(TwoStep, weighting used, support, LawReport)`."""
     model = result.model
     levels, _ = group_currents(cur)
     forms = choose_forms(model, theta, cur, degrees, "auto" if laws is None else laws,
@@ -107,8 +107,8 @@ def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
         [theta, np.asarray(law_values(layout.lawset(coef), levels))]))
     start = TwoStep(theta=theta, current=cur, levels=levels, layout=layout, coef=coef, rms=rms,
                     rows=rows, exp_cols=exp_cols)
-    return start, used, support, {"two_step_total_rms_N": rms, "weighting_note": note,
-                                  **forms_info(forms, model.param_names)}
+    return start, used, support, LawReport(two_step_rms=float(rms), weighting_note=note,
+                                           **forms_choice(forms))
 
 
 def _score(model: AbstractModel, layout: Layout, coef, rows, theta_rows) -> float:
@@ -215,8 +215,8 @@ def generalize(
         `"fixed"`: the model's :func:`default_degrees` (polynomials; the forms of the last
         release); or parameter name -> `"poly"`, `"exp"` ($\\exp(a + b\\,i)$ at degree 1) or
         `"sat"` ($a + b(1 - e^{-i/s})$, the scale s fitted to the per-test values), the others
-        fixed. The forms are in `info["law_forms"]` (the criteria in
-        `info["law_criteria"]`), the summary and fit.json. Auto is the default because on the
+        fixed. The forms are in `GeneralizedModel.laws` (`Law.form`; the criteria in
+        `report.law_criteria`), the summary and fit.json. Auto is the default because on the
         UTFSM tests it predicts held-out currents better or as well: modified Bouc-Wen joint
         8.90 % median against 11.08 % with the fixed forms, Dahl 15.63 against 16.31 %, tanh
         the same forms, Bouc-Wen 14.93 against 14.77 % (`benchmarks/defaults.md`); on the
@@ -248,14 +248,14 @@ def generalize(
         mask = fit_mask(batch, result.transient)
     model = result.model
     theta = canonical_z_scale(model, theta_raw)
-    start, used, support, info = _two_step_stage(result, batch, theta, cur, degrees, laws,
-                                                 weighting, mask)
+    start, used, support, report = _two_step_stage(result, batch, theta, cur, degrees, laws,
+                                                   weighting, mask)
     timings = {"two_step": time.perf_counter() - t0}
     rng = (float(start.levels.min()), float(start.levels.max()))
     if method == "two-step":
-        info["timings"] = timings
+        report = dataclasses.replace(report, timings=timings)
         return make_generalized(model, start.layout, start.coef, "two-step", start.rms, rng, used,
-                                support, info, transient=result.transient)
+                                support, report, transient=result.transient)
     sw, po = check_settings(swarm, polish)
     view = sw.view if sw is not None else None
     use_view = model.dynamic if view is None else bool(view)
@@ -263,15 +263,15 @@ def generalize(
                              sw.params if sw is not None else None)
     out = solve_laws(problem, swarm=sw, polish=po,
                      uncertainty=po.uncertainty if po is not None else True, key=key)
-    info.update(out.info())
     timings.update(out.outcome.timings)
+    report = dataclasses.replace(report, outcome=out.outcome)
     if not out.rms <= start.rms:  # never worse than the two-step laws (also catches NaN)
         out = JointOutcome(coef=start.coef, eta=None, rms=start.rms)
-        info["fell_back_to_two_step"] = True
+        report = dataclasses.replace(report, fell_back_to_two_step=True)
     timings["total"] = time.perf_counter() - t0
-    info["timings"] = timings
     return make_generalized(model, start.layout, out.coef, "joint", out.rms, rng, used, support,
-                            info, uncertainty=law_uncertainty_of(model, start.layout, out),
+                            dataclasses.replace(report, timings=timings),
+                            uncertainty=law_uncertainty_of(model, start.layout, out),
                             transient=result.transient)
 
 
@@ -292,12 +292,13 @@ def law_uncertainty_of(model: AbstractModel, layout: Layout, out: JointOutcome
                           sigma=out.sigma, dof=out.dof)
 
 
-def make_generalized(model: AbstractModel, layout: Layout, coef, method: str, rms: float, rng, weighting,
-          support, info: dict[str, Any], **extra) -> GeneralizedModel:
+def make_generalized(model: AbstractModel, layout: Layout, coef, method: str, rms: float, rng,
+                     weighting, support, report: LawReport, **extra) -> GeneralizedModel:
+    """The :class:`GeneralizedModel` of law coefficients `coef` in `layout`."""
     scales = layout.law_scales
     laws = {n: Law(layout.kinds[p], np.asarray(coef)[layout.block(p)],
                    scales[p] if layout.kinds[p] == "sat" else None)
             for p, n in enumerate(model.param_names)}
     return GeneralizedModel(model=model, laws=laws, method=method, total_rms=rms,
-                            current_range=rng, weighting=weighting, support=support, info=info,
+                            current_range=rng, weighting=weighting, support=support, report=report,
                             **extra)

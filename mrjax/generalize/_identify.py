@@ -25,7 +25,7 @@ from ._forms import choose_forms
 from ._generalize import law_uncertainty_of, make_generalized
 from ._joint import N_LEVELS, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, group_currents, nodes
-from ._model import GeneralizedModel, batch_command
+from ._model import GeneralizedModel, LawReport, batch_command
 from ._rows import make_rows, packed_rows
 
 #: Default range of the command filter's rate eta [1/s] searched when the lag is fitted: time
@@ -53,7 +53,7 @@ def command_unit_of(batch: Batch) -> str:
     return units[0] if units else "A"
 
 
-def _lag_mode(lag: Any, varying: bool, info: dict[str, Any]
+def _lag_mode(lag: Any, varying: bool, notes: list[str]
               ) -> tuple[str, float, tuple[float, float]]:
     """`(mode, eta0, bounds)` of `identify`'s `lag`: mode `"none"`, `"fit"` or `"fixed"`."""
     if lag is None or (isinstance(lag, str) and lag.lower() == "none"):
@@ -71,8 +71,8 @@ def _lag_mode(lag: Any, varying: bool, info: dict[str, Any]
     if lag.rate is not None:
         return "fixed", float(lag.rate), lag.bounds
     if not varying:
-        info["lag_note"] = ("no record has a time-varying command: the lag has no effect "
-                            "and is not fitted")
+        notes.append("no record has a time-varying command: the lag has no effect and is "
+                     "not fitted")
         return "none", 0.0, lag.bounds
     return "fit", 0.0, lag.bounds
 
@@ -163,7 +163,7 @@ def identify(
     - `key`: the swarm's seed or PRNG key; same key, same result.
 
     **Returns:** a :class:`GeneralizedModel` with `method="joint"`, `command_unit` `"A"` or
-    `"V"`, `lag` the rate [1/s] (None without a filter), `uncertainty`, and `info` (stage
+    `"V"`, `lag` the rate [1/s] (None without a filter), `uncertainty`, and `report` (stage
     timings [s], swarm and polish statistics, which redundancy was fixed). Bouc-Wen-type laws
     are reported on the |z|max = 1 scale at the bottom of the command range.
 
@@ -176,7 +176,7 @@ def identify(
     unit = command_unit_of(batch)
     cmd = batch_command(batch, unit)
     mask = np.asarray(fit_mask(batch, transient), bool)
-    info: dict[str, Any] = {"command_unit": unit}
+    notes: list[str] = []
     n_scored = int(mask.sum())
     if n_scored <= model.n_params:
         raise InputError(f"{n_scored} scored samples are too few for model {model.name!r}")
@@ -193,7 +193,7 @@ def identify(
     else:
         per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
         n_levels = group_currents(per)[0].size
-    mode, eta0, lag_box = _lag_mode(lag, varying, info)
+    mode, eta0, lag_box = _lag_mode(lag, varying, notes)
     forms = choose_forms(model, None, None, degrees, laws, n_levels, unit)
     kinds, degs = forms.kinds, forms.degrees
     layout = Layout(kinds, forms.sizes, tuple(nodes(lo, hi, d + 1) for d in degs))
@@ -217,7 +217,7 @@ def identify(
                                free_shape=not (user & {"delta", "beta", "gamma"}))
     D = coding.n_position
     if z_scale:
-        info["z_scale"] = (f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "
+        notes.append(f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "
                            f"delta(u0) = beta(u0) + gamma(u0)")
     full = packed_rows(batch, mask, cmd) if not model.dynamic and cmd.ndim == 1 else \
         make_rows(batch, mask, cmd)
@@ -236,11 +236,11 @@ def identify(
     timings = {"prepare": time.perf_counter() - t0}
     out = solve_laws(problem, swarm=sw, polish=po,
                      uncertainty=po.uncertainty if po is not None else True, key=key)
-    info.update(out.info())
     timings.update(out.outcome.timings)
     timings["total"] = time.perf_counter() - t0
-    info.update(timings=timings, lag_fitted=mode == "fit", lag_mode=mode)
-    return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, info,
+    report = LawReport(law_choice="given", lag_mode=mode, notes=tuple(notes), timings=timings,
+                       outcome=out.outcome)
+    return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, report,
                             command_unit=unit, lag=None if mode == "none" else out.eta,
                             uncertainty=law_uncertainty_of(model, layout, out))
 

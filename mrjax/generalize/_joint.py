@@ -402,26 +402,6 @@ class JointOutcome:
     dof: int = 0
     outcome: Outcome | None = None
 
-    def info(self) -> dict[str, Any]:
-        """A summary of the engine's stages for `GeneralizedModel.info`: swarm generations and
-        stop, the candidates' RMS [N], the polish start, steps, status and integration per
-        stage, and the timings [s]."""
-        out = self.outcome
-        if out is None:
-            return {}
-        d: dict[str, Any] = {"start_rms_N": dict(out.start.candidates),
-                             "polish_start": out.start.source,
-                             "polish_steps": [int(s.steps[0]) for s in out.stages],
-                             "polish_status": [s.status[0] for s in out.stages],
-                             "polish_stages": [s.name for s in out.stages],
-                             "polish_integration": {s.name: s.integration for s in out.stages},
-                             "polish_kept_start": bool(out.kept_start[0])}
-        if out.swarm is not None:
-            d.update(swarm_generations=int(out.swarm.generations[0]),
-                     swarm_stopped_by_criterion=bool(out.swarm.stopped_by_criterion[0]),
-                     swarm_restarts=out.swarm.restarts, swarm_rms_N=float(out.swarm.rms[0]))
-        return d
-
 
 def solve_laws(problem: LawsProblem, *, swarm: Swarm | None, polish: Polish | None,
                uncertainty: bool, key: Any) -> JointOutcome:

@@ -19,6 +19,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
 from .._io import json_safe
+from .._warnings import ResultWarning, WarningKind
 from ..data import COMMAND_UNITS as COMMAND_UNITS_BY_KIND
 from ..data import Batch, as_batch, check_mask
 from ..models import AbstractModel, from_source, get, resolve_model, source_of
@@ -100,6 +101,42 @@ class LawUncertainty:
                    dof=int(d.get("dof") or 0))
 
 
+@dataclasses.dataclass(frozen=True)
+class LawReport:
+    """How laws were found (`GeneralizedModel.report`).
+
+    **Fields:** `law_choice` how the forms were chosen (`"given"`, `"auto"` by the lowest BIC
+    of the per-test values, `"fixed"`); `law_criteria` {parameter: {form: BIC}} where the data
+    chose; `two_step_rms` [N] the two-step laws' total RMS (NaN if not computed);
+    `fell_back_to_two_step` where the joint fit did not improve on them and they were kept;
+    `weighting_note` why the two-step weighting fell back to equal weights; `lag_mode`
+    (`"none"`, `"fit"`, `"fixed"`); `notes` on the fit (the lag without a varying command,
+    the z scale chosen); `timings` [s] per stage; `outcome` the engine's
+    :class:`mrjax.engine.Outcome` of the joint fit (its swarm, start, polish stages), or None.
+    """
+
+    law_choice: str = "given"
+    law_criteria: dict[str, dict[str, float]] | None = None
+    two_step_rms: float = float("nan")
+    fell_back_to_two_step: bool = False
+    weighting_note: str = ""
+    lag_mode: str = "none"
+    notes: tuple[str, ...] = ()
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    outcome: Any = None
+
+    @property
+    def lag_fitted(self) -> bool:
+        """Whether the command filter's rate was fitted."""
+        return self.lag_mode == "fit"
+
+    @property
+    def polish_steps(self) -> tuple[int, ...]:
+        """Levenberg-Marquardt steps of each polish stage of the joint fit."""
+        out = self.outcome
+        return () if out is None else tuple(int(st.steps[0]) for st in out.stages)
+
+
 # ------------------------------------------------------------------------------ the result
 @dataclasses.dataclass(frozen=True, eq=False)
 class GeneralizedModel:
@@ -118,7 +155,8 @@ class GeneralizedModel:
     - `weighting`: how the two-step stage weighted the per-condition parameters
         (`"covariance"` or `"equal"`; `""` otherwise).
     - `support`: plotting data of the two-step stage (see :meth:`curves`), or None.
-    - `info`: diagnostics (two-step total RMS, swarm and polish statistics, timings [s]).
+    - `report`: a :class:`LawReport` (how the forms were chosen, the two-step total RMS, the
+        engine's outcome of a joint fit, timings [s]).
     - `command_unit`: `"A"` (laws of the coil current, default) or `"V"` (laws of a command
         voltage: every coefficient of power m is per $V^m$).
     - `lag`: $\\eta$ [1/s] of the command filter $\\dot u = -\\eta(u - v)$ the laws see (the
@@ -135,7 +173,7 @@ class GeneralizedModel:
     current_range: tuple[float, float]
     weighting: str = ""
     support: dict[str, Any] | None = None
-    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    report: LawReport = LawReport()
     command_unit: str = "A"
     lag: float | None = None
     uncertainty: LawUncertainty | None = None
@@ -373,12 +411,12 @@ class GeneralizedModel:
         return out
 
     # ----------------------------------------------------------------------------- text, I/O
-    def law_warnings(self, currents: ArrayLike) -> list[dict[str, Any]]:
+    def law_warnings(self, currents: ArrayLike) -> list[ResultWarning]:
         """Laws that the tests' currents cannot determine: with U distinct `currents` [in
         `command_unit`] a law of degree d needs d + 1 of them, so where the model's default
         degree (:func:`default_degrees`) is higher than U - 1 the law was reduced to degree
         U - 1 (constant for one current) or is not determined. As `FitResult.warnings`:
-        `[{"kind": "too_few_currents", "message", "conditions": [], "parameters"}]` or `[]`.
+        `[ResultWarning(TOO_FEW_CURRENTS, ...)]` or `[]`.
         (Laws identified from time-varying commands, `identify`, see a continuum of commands:
         this check is for laws through tests at constant currents.)"""
         cur = np.asarray(currents, float).ravel()
@@ -392,14 +430,13 @@ class GeneralizedModel:
         need = max(max(wanted.get(n, 0), len(self.coefficients(n)) - 1) for n in short) + 1
         have = ", ".join(f"{v:g}" for v in levels[:6]) + (" ..." if levels.size > 6 else "")
         U = levels.size
-        return [{
-            "kind": "too_few_currents",
-            "message": f"laws of {', '.join(short)} from {U} distinct current"
+        return [ResultWarning(
+            WarningKind.TOO_FEW_CURRENTS,
+            f"laws of {', '.join(short)} from {U} distinct current"
             f"{'s' if U != 1 else ''} ({have} {self.command_unit}): their degrees need up to "
             f"{need} distinct currents, so they are "
             f"{'constants' if U == 1 else f'of degree at most {U - 1}'} or not determined by "
-            "the data; test more currents",
-            "conditions": [], "parameters": short}]
+            "the data; test more currents", parameters=short)]
 
     def loosely_determined(self, rel: float = 0.025) -> dict[str, tuple[bool, ...]]:
         """Which law coefficients the data determine only loosely: std-error above `rel`
@@ -443,7 +480,7 @@ class GeneralizedModel:
         lo, hi = self.current_range
         lines.append(f"{self.model.name} generalized ({self.method}), {var} in [{lo:g}, {hi:g}] "
                      f"{self.command_unit}: total RMS {self.total_rms:.4g} N")
-        if "law_criteria" in self.info:
+        if self.report.law_criteria is not None:
             lines.append("law forms chosen by the data (lowest BIC of the per-test values): "
                          + ", ".join(f"{n} {self.laws[n].form}" for n in self.param_names))
         if any(any(v) for v in self.loosely_determined().values()):
@@ -472,16 +509,16 @@ class GeneralizedModel:
             "current_range_A": rng if self.command_unit == "A" else None,
             "laws": {n: self.laws[n].to_dict() for n in self.param_names},
             "law_forms": {n: self.laws[n].form for n in self.param_names},
-            "law_choice": self.info.get("law_choice", "given"),
+            "law_choice": self.report.law_choice,
             "weighting": self.weighting or None,
             "units": {n: u for n, u in zip(self.param_names, self.model.units)},
             "command_unit": self.command_unit,
             "command_range": rng,
             "lag_1_s": self.lag,
-            "lag_fitted": bool(self.info.get("lag_fitted", False)),
+            "lag_fitted": self.report.lag_fitted,
         }
-        if "law_criteria" in self.info:
-            out["law_criteria"] = self.info["law_criteria"]
+        if self.report.law_criteria is not None:
+            out["law_criteria"] = self.report.law_criteria
         if self.transient is not None:
             out["transient"] = self.transient
         if self.uncertainty is not None:
@@ -519,9 +556,10 @@ class GeneralizedModel:
                    current_range=tuple(rng), weighting=d.get("weighting") or "",
                    command_unit=unit, lag=None if lag is None else float(lag),
                    uncertainty=LawUncertainty.from_dict(d), transient=d.get("transient"),
-                   info={"lag_fitted": bool(d.get("lag_fitted", False)),
-                         **{k: d[k] for k in ("law_choice", "law_criteria")
-                            if d.get(k) is not None and d.get(k) != "given"}})
+                   report=LawReport(law_choice=d.get("law_choice") or "given",
+                                    law_criteria=d.get("law_criteria"),
+                                    lag_mode="fit" if d.get("lag_fitted") else (
+                                        "none" if lag is None else "fixed")))
 
     def to_json(self, **kw) -> str:
         """JSON text of :meth:`to_dict`."""

@@ -13,12 +13,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._errors import InputError
-from ..data import Batch, check_mask
-from ..models import AbstractModel, check_bounds, resolve_model
-from ..objective import ConditionResidual
-from ._args import as_free, as_theta, require_x64
-from ._lm import DEFAULT_TOL, lm_solve, status_name
-from ._uncertainty import Uncertainty, make_uncertainty, uncertainty_core, undefined_uncertainty
+from ._args import require_x64
+from ._lm import DEFAULT_TOL, lm_solve
 
 #: A start on a bound is moved this fraction of the box width inside before the solve.
 BOUND_NUDGE = 1e-3
@@ -27,104 +23,17 @@ BOUND_NUDGE = 1e-3
 BOUND_SNAP = 1e-3
 
 
-class Polished(eqx.Module):
-    """Result of :func:`polish`, per condition.
-
-    **Fields** (C conditions, P parameters):
-
-    - `theta`: polished parameters (C, P), SI units, inside the bounds.
-    - `rms`: RMS force error of `theta` [N], (C,); never larger than `rms_start`.
-    - `rms_start`: RMS of the start (clipped to the bounds) [N], (C,).
-    - `steps`: Levenberg-Marquardt steps taken, accepted and rejected (C,).
-    - `improved`: whether `rms < rms_start`, (C,).
-    - `kept_start`: whether the start was returned because the solve was non-finite or worse.
-    - `at_bound`: (C, P) whether a free parameter ended within 1e-6 of the box width of a
-        bound (its `stderr` then describes the unconstrained linearisation only).
-    - `status`: readable status per condition (static): `"successful"`, `"max_steps_reached"`,
-        `"nonlinear_divergence"`, `"nonfinite"`, ... from optimistix, or `"kept_start"`.
-    - `lm_status`: optimistix's own status per condition (static), also where the start was
-        kept.
-    - `uncertainty`: :class:`Uncertainty` at `theta`.
-    - `lower`, `upper`: the bounds used, (P,). `labels`, `param_names`: static.
-    """
-
-    theta: Float[Array, "C P"]
-    rms: Float[Array, " C"]
-    rms_start: Float[Array, " C"]
-    steps: Int[Array, " C"]
-    improved: Bool[Array, " C"]
-    kept_start: Bool[Array, " C"]
-    at_bound: Bool[Array, "C P"]
-    uncertainty: Uncertainty
-    lower: Float[Array, " P"]
-    upper: Float[Array, " P"]
-    status: tuple[str, ...] = eqx.field(static=True)
-    lm_status: tuple[str, ...] = eqx.field(static=True)
-    labels: tuple[str, ...] = eqx.field(static=True)
-    param_names: tuple[str, ...] = eqx.field(static=True)
-
-    @property
-    def stderr(self) -> Float[Array, "C P"]:
-        """Standard errors (C, P), SI units (see :class:`Uncertainty`)."""
-        return self.uncertainty.stderr
-
-    @property
-    def ci95(self) -> Float[Array, "C P 2"]:
-        """95 % confidence intervals (C, P, 2), SI units."""
-        return self.uncertainty.ci95
-
-    @property
-    def cov(self) -> Float[Array, "C P P"]:
-        """Covariances (C, P, P), SI units."""
-        return self.uncertainty.cov
-
-    @property
-    def corr(self) -> Float[Array, "C P P"]:
-        """Correlation matrices (C, P, P)."""
-        return self.uncertainty.corr
-
-    @property
-    def identifiable(self) -> Bool[Array, "C P"]:
-        """(C, P) False for parameters that are not identifiable (see :class:`Uncertainty`)."""
-        return self.uncertainty.identifiable
-
-    def summary(self) -> str:
-        """Readable report: RMS before/after, steps and status per condition, then the
-        parameters with standard errors."""
-        rs, r0 = np.asarray(self.rms), np.asarray(self.rms_start)
-        steps = np.asarray(self.steps)
-        width = max([len(s) for s in self.labels] + [9])
-        lines = [f"{'condition':<{width}}  {'rms_start [N]':>13}  {'rms [N]':>11}  "
-                 f"{'steps':>5}  status"]
-        for i, lab in enumerate(self.labels):
-            lines.append(f"{lab:<{width}}  {r0[i]:>13.6g}  {rs[i]:>11.6g}  {steps[i]:>5d}  "
-                         f"{self.status[i]}")
-        return "\n".join(lines) + "\n\n" + self.uncertainty.summary(self.labels)
-
-    def __repr__(self) -> str:
-        C, P = self.theta.shape
-        counts: dict[str, int] = {}
-        for s in self.status:
-            counts[s] = counts.get(s, 0) + 1
-        ratio = np.asarray(self.rms) / np.asarray(self.rms_start)
-        return (f"Polished(C={C}, P={P}, params={list(self.param_names)}, "
-                f"median rms={np.median(np.asarray(self.rms)):.6g} N, "
-                f"median rms/rms_start={np.nanmedian(ratio):.4g}, "
-                f"improved={int(np.sum(np.asarray(self.improved)))}/{C}, status={counts})")
-
-
-#: After a polish on a view of the records (`mrjax.fitting.swarm_view`), the polish of the full
+#: After a polish on a view of the records (`mrjax.data.swarm_view`), the polish of the full
 #: records stops at this multiple of the tolerance, or after `FULL_MAX_STEPS` steps: from the
-#: view's optimum the full records need only a refinement (measured on the 30 UTFSM tests,
-#: modified Bouc-Wen: it lowers the RMS by 0.02 % (median), 0.23 % at most, 95 % of that in
-#: the first 4 steps). Used by `mrjax.fit`; the joint laws of `mrjax.generalize` use the
-#: factor (their coupled refinement has no step cap).
+#: view's optimum the full records need only a refinement, nearly all of it in the first few
+#: steps (`benchmarks/tuning.md`). Used by `mrjax.fit`; the joint laws of `mrjax.generalize`
+#: use the factor (their coupled refinement has no step cap).
 FULL_TOL_FACTOR = 100.0
 FULL_MAX_STEPS = 4
-#: The polish on the views stops at this multiple of the tolerance: the full records' refinement
-#: follows (MBW on the 30 UTFSM tests: 10 x cut the view polish from 20.2 to 16.7 s with every
-#: test's NRMSE unchanged to 0.001 points). The joint laws' search polish on the full records
-#: (where their views are skipped, `mrjax.generalize`) stops there too.
+#: The polish on the views stops at this multiple of the tolerance: the full records'
+#: refinement follows, and a tighter view polish would only be undone by it. The joint laws'
+#: search polish on the full records (where their views are skipped, `mrjax.generalize`)
+#: stops there too.
 VIEW_TOL_FACTOR = 10.0
 
 
@@ -302,99 +211,3 @@ def solve_box(
     return _solve_core(residual, free_idx, int(max_steps), jacobian, bool(scaled), bool(snap),
                        np.asarray(tol, float), z0, lo, hi, args, np.asarray(n),
                        None if page_size is None or int(page_size) >= U else int(page_size))
-
-
-def polish(
-    model: AbstractModel,
-    theta0: Float[ArrayLike, "C P"],
-    batch: Batch,
-    *,
-    mask: Bool[ArrayLike, "C T"] | None = None,
-    lower: Float[ArrayLike, " P"] | None = None,
-    upper: Float[ArrayLike, " P"] | None = None,
-    max_steps: int = 100,
-    tol: float = DEFAULT_TOL,
-    free: Bool[ArrayLike, " P"] | Sequence[str] | None = None,
-    uncertainty: bool = True,
-    page_size: int | None = None,
-) -> Polished:
-    """Refine parameters on every condition with bounded Levenberg-Marquardt.
-
-    One `optimistix.least_squares` solve per condition, on the residuals of
-    :func:`mrjax.objective.residuals`, batched with `jax.vmap` in one compiled function
-    (`throw=False`: a failed condition never stops the others). Bounds are enforced by the
-    sine reparameterisation described in the module docstring. Per condition the result is
-    never worse than the start: a non-finite solve or a larger RMS returns the start with
-    status `"kept_start"`. :func:`uncertainty` is evaluated at the result.
-
-    **Arguments:**
-
-    - `model`: an :class:`mrjax.models.AbstractModel`. Pass ODE models with explicit
-        `substeps`; if `substeps` is `None` it is resolved once on the host from the bounds
-        and the starts (the stiffest row decides).
-    - `theta0`: starts (C, P), or (P,) for every condition, SI units (e.g. the swarm's best).
-        Clipped to the bounds; must be finite.
-    - `batch`: the C conditions, a :class:`mrjax.data.Batch`.
-    - `mask`: (C, T) samples to score (default `batch.mask`; always combined with it).
-    - `lower`, `upper`: bounds (P,), SI units, finite (default `model.bounds`). A parameter
-        with `lower == upper` is fixed.
-    - `max_steps`: maximum LM steps per condition (static: a new value recompiles).
-    - `tol`: stop after a step that changes the relative residuals and the bounded variables
-        by less than this (root mean square; the RMS then changes by less than a fraction
-        `tol` per step; see `mrjax.refine.lm_solve`). A runtime value, no recompilation.
-    - `free`: (P,) bool mask or names of the parameters to fit (default all); the others are
-        held at `theta0`.
-    - `uncertainty`: compute the uncertainty at the result (default); `False` skips that
-        Jacobian pass (e.g. for an intermediate polish) and reports NaN std-errors.
-    - `page_size`: `None` (default) solves every condition in one batch, which steps until
-        its slowest condition stops. An integer K (static) solves K conditions at a time
-        (one compiled page): a page stops when its own slowest condition does, so one
-        condition that needs 150 steps no longer makes all the others wait; each page is
-        narrower, so this pays where step counts differ a lot and each step is costly. The
-        results are those of one batch up to rounding (a narrower batch vectorises
-        differently: about 1e-10 relative).
-
-    **Returns:** a :class:`Polished` with `theta`, `rms`, `rms_start`, `steps`, `status`,
-    `improved`, `kept_start`, `at_bound` and `uncertainty` (`stderr`, `cov`, `corr`, `ci95`,
-    `identifiable`).
-    """
-    C = batch.n_conditions
-    lo, hi = check_bounds(model, (lower, upper))
-    theta0 = np.clip(as_theta(model, theta0, C, "theta0"), lo, hi)
-    m = check_mask(batch, mask)
-    fr = as_free(model, free)
-    fit = fr & (lo < hi)
-    free_idx = tuple(int(i) for i in np.flatnonzero(fit))
-    if not free_idx:
-        raise InputError(
-            "no free parameters: every parameter is fixed (free mask or lower == upper)"
-        )
-    model = resolve_model(model, theta0, batch.xdot, batch.dt, batch.mask)
-    mj = jax.device_put(m)
-    sol = solve_box(ConditionResidual(model), theta0, lo, hi,
-                    (batch.x, batch.xdot, batch.dt, batch.force, mj), m.sum(axis=1),
-                    max_steps=max_steps, tol=tol, free=free_idx, jacobian="forward", snap=True,
-                    page_size=page_size)
-    theta, rms, rms0, steps, code, kept = (sol.z, sol.rms, sol.rms_start, sol.steps, sol.status,
-                                           sol.kept)
-    unc = None
-    if uncertainty:
-        unc = uncertainty_core(model, free_idx, theta, batch.x, batch.xdot, batch.dt,
-                               batch.force, mj)
-    theta_np = np.asarray(theta)
-    kept_np = np.asarray(kept)
-    lm_status = tuple(status_name(c) for c in np.asarray(code))
-    status = tuple("kept_start" if k else s for k, s in zip(kept_np, lm_status, strict=True))
-    tol = 1e-6 * (hi - lo)
-    at_bound = fit & ((theta_np - lo <= tol) | (hi - theta_np <= tol))
-    rms_np, rms0_np = np.asarray(rms), np.asarray(rms0)
-    return Polished(
-        theta=theta, rms=rms, rms_start=rms0, steps=steps,
-        improved=jnp.asarray(rms_np < rms0_np), kept_start=kept,
-        at_bound=jnp.asarray(at_bound),
-        uncertainty=(make_uncertainty(model, theta_np, unc, fit) if unc is not None
-                     else undefined_uncertainty(model, theta_np, fit)),
-        lower=jnp.asarray(lo), upper=jnp.asarray(hi),
-        status=status, lm_status=lm_status, labels=tuple(batch.labels),
-        param_names=tuple(model.param_names),
-    )

@@ -14,12 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from ..data import Batch, fit_mask
-from ..fitting import FitResult, fit
+from ..data import Batch
+from ..engine import Swarm
+from ..fitting import FitResult, fit, polish_fit
 from ..generalize import generalize
 from ..models import AbstractModel, get, resolve_model
 from ..objective import nrmse, rms_per_condition
-from ..refine import polish
 from ._data import DATA_CYCLES, load_study_data
 from ._stats import finite_median
 
@@ -159,51 +159,35 @@ def _paper_box(study: Study, model: str):
     return PAPER_BOX[model] if study.data_info["truth"] else None
 
 
-def _caps(study: Study) -> dict[str, Any]:
-    return {"max_generations": QUICK_GENERATIONS} if study.quick else {}
-
-
-def _polished(result: FitResult, batch: Batch, polish_steps: int = 200) -> FitResult:
-    """The paper's-swarm tanh result after the Levenberg-Marquardt polish (same compiled
-    polish as `mrjax.fit`'s)."""
-    lo, hi = result.model.bounds
-    mask = fit_mask(batch, None)
-    pol = polish(result.model, result.theta, batch, mask=mask, lower=lo, upper=hi,
-                 max_steps=polish_steps)
-    unc = pol.uncertainty
-    rms = np.asarray(pol.rms, float)
-    return dataclasses.replace(
-        result, method="pso+lm", theta=np.asarray(pol.theta), rms=rms,
-        nrmse=nrmse(rms, batch.force, mask), pso_rms=result.rms,
-        polish_steps=np.asarray(pol.steps), polish_status=tuple(pol.status),
-        stderr=np.asarray(unc.stderr), ci95=np.asarray(unc.ci95), corr=np.asarray(unc.corr),
-        identifiable=np.asarray(unc.identifiable))
+def _swarm(study: Study, mode: str) -> Swarm:
+    """The study's swarm in `mode` (capped at `QUICK_GENERATIONS` in a quick study)."""
+    return Swarm(mode=mode, max_generations=QUICK_GENERATIONS if study.quick else 200)
 
 
 def _job_kwok_paper_swarm(study: Study) -> FitResult:
-    return fit("kwok", study.batch, method="pso", swarm_mode="full", seed=study.seed,
-               uncertainty=False, bounds=_paper_box(study, "kwok"), **_caps(study))
+    return fit("kwok", study.batch, swarm=_swarm(study, "full"), polish=None, key=study.seed,
+               bounds=_paper_box(study, "kwok"))
 
 
 def _job_bouc_wen_paper_swarm(study: Study) -> FitResult:
-    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm_mode="full",
-            seed=study.seed, uncertainty=False, bounds=_paper_box(study, "bouc_wen"),
-            **_caps(study))
+    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, swarm=_swarm(study, "full"),
+            polish=None, key=study.seed, bounds=_paper_box(study, "bouc_wen"))
     return _reevaluated(r, get("bouc_wen"), study.batch)
 
 
 def _job_bouc_wen_separable(study: Study) -> FitResult:
-    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, method="pso", swarm_mode="separable",
-            seed=study.seed, uncertainty=False, **_caps(study))
+    r = fit(_bouc_wen_swarm_model(study.batch), study.batch, swarm=_swarm(study, "separable"),
+            polish=None, key=study.seed)
     return _reevaluated(r, get("bouc_wen"), study.batch)
 
 
 def _job_kwok_separable(study: Study) -> FitResult:
-    return fit("kwok", study.batch, seed=study.seed, **_caps(study))
+    return fit("kwok", study.batch, swarm=_swarm(study, "separable"), key=study.seed)
 
 
 def _job_kwok_paper_swarm_polished(study: Study) -> FitResult:
-    return _polished(study.runs["kwok_paper_swarm"], study.batch)
+    """The paper's-swarm tanh result after the engine's Levenberg-Marquardt polish."""
+    return polish_fit(study.runs["kwok_paper_swarm"], study.batch)
 
 
 _JOBS: dict[str, Callable[[Study], FitResult]] = {
@@ -258,7 +242,7 @@ def _generalize(study: Study) -> None:
     if not study.data_info["truth"] and not study.quick:
         # measured data: laws of per-test averages of nonlinear parameters can fit poorly;
         # the joint fit of the law coefficients on all tests never does worse
-        study.generalized["joint"] = generalize(res, batch, method="joint", seed=study.seed,
+        study.generalized["joint"] = generalize(res, batch, method="joint", key=study.seed,
                                                 laws="fixed")
     for k, gm in study.generalized.items():
         study.generalized_eval[k] = gm.evaluate(batch)
