@@ -97,19 +97,6 @@ class ConditionResidual(eqx.Module):
         return ((r[None, :], mask[None, :]),) if self.blocks else r
 
 
-def fitness(
-    model: AbstractModel,
-    theta: Float[ArrayLike, "*T P"],
-    x: Float[ArrayLike, " T"],
-    xdot: Float[ArrayLike, " T"],
-    dt: Float[ArrayLike, "*T"],
-    force: Float[ArrayLike, " T"],
-    mask: Bool[ArrayLike, " T"],
-) -> Float[Array, ""]:
-    """RMS force error [N] of `theta` on one condition (one particle, one condition)."""
-    return masked_rms(model.force(theta, x, xdot, dt), force, mask)
-
-
 def nrmse(
     rms: Float[ArrayLike, " C"], force: Float[ArrayLike, "C T"], mask: Bool[ArrayLike, "C T"]
 ) -> np.ndarray:
@@ -134,7 +121,7 @@ def rms_per_condition(model: AbstractModel, theta: ArrayLike, batch: Batch, mask
 def _rms_batch(model, theta, x, xdot, dt, force, mask):
     # compiled once per model and shape: run eagerly, an ODE model's `lax.scan` was compiled
     # afresh on every call (its step function is a new closure each time)
-    f = jax.vmap(lambda th, a, v, d, F, k: fitness(model, th, a, v, d, F, k))
+    f = jax.vmap(lambda th, a, v, d, F, k: masked_rms(model.force(th, a, v, d), F, k))
     return f(theta, x, xdot, dt, force, mask)
 
 

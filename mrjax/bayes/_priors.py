@@ -26,9 +26,7 @@ it gave 16 divergent transitions in 200,000 draws; the soft box none.
 $\\log\\theta$, on $[\\log l, \\log h]$ (a lower bound of 0 taken as `LOG_FLOOR` $h$), with
 $\\log\\theta$ added to the log-Jacobian. The damper models' scale parameters trade off as
 products (a damping times a hysteretic amplitude), ridges that are straight in logarithms and
-curved in the parameters (modified Bouc-Wen on a UTFSM view: the Hessian's largest eigenvalue
-in the posterior's whitened coordinates 6.2 -> 4.3 at the median draw, its smallest
-0.13 -> 0.21).
+curved in the parameters (`benchmarks/posterior_geometry.py`).
 (The polish's periodic MINUIT map $\\sin u$ would make every mode repeat; these maps are one
 to one.) A user's prior multiplies the flat density on the box: a :class:`Normal` or
 :class:`LogNormal` is truncated to it, a :class:`Uniform` narrows it.

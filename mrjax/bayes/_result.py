@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .._errors import InputError
 from .._io import json_safe
 from .._warnings import ResultWarning, WarningKind
 
@@ -462,3 +463,24 @@ class PosteriorFront:
     def netcdf_bytes(self) -> bytes:
         """`posterior.nc` bytes (:attr:`idata` as netCDF-4)."""
         return netcdf_bytes(self.idata)
+
+    def predict_band(self, data: Any, *, level: float = 0.95, n_draws: int = 200,
+                     noise_draws: int = 4, seed: int = 0) -> Any:
+        """The posterior predictive force band on records `data` (a batch, condition(s) or
+        file path(s)): `n_draws` draws spread evenly over the chains, each draw's model force
+        plus `noise_draws` Gaussian noise samples of its noise level, the central `level`
+        interval at every sample.
+
+        **Returns:** a :class:`mrjax.bayes.PredictiveBand` with the coverage of the measured
+        force per record. Raises :class:`mrjax.InputError` for a non-positive count or a
+        level outside (0, 1)."""
+        from ..data import as_batch  # here: the data layer is only needed to predict
+
+        if n_draws < 1:
+            raise InputError("n_draws must be positive")
+        return self.band(as_batch(data), n_draws, level, noise_draws, seed)
+
+    def band(self, batch: Any, n_draws: int, level: float, noise_draws: int,
+             seed: int) -> Any:
+        """The kind's band on `batch` (see :meth:`predict_band`)."""
+        raise NotImplementedError

@@ -74,18 +74,12 @@ class Sampler(eqx.Module):
     - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
         `WARMUP` = 500 (Stan: 1,000, for chains started anywhere): the chains start at the
         posterior's mode with the inverse of its Hessian as mass matrix, and the adaptation
-        has little left to find. Modified Bouc-Wen (UTFSM 10mm1Hz0x5A, AR(1)): 500 against
-        1,000 steps, 115.7 against 157.7 s, bulk / tail ESS 2,180 / 1,058 against
-        2,867 / 1,238; the calibration sets: `benchmarks/posterior.md`.
+        has little left to find (`benchmarks/posterior.md`).
     - `target_accept`: the step-size adaptation's target acceptance rate; None (default):
-        `TARGET_ACCEPT` by the model (:meth:`for_model`). A static model 0.9 (Stan: 0.8):
-        the tanh model on short records (2 cycles, 4 mm) has correlated posteriors (c, k,
-        alpha, beta to 0.9); on the 50 such records of the calibration, through the soft box
-        (`mrjax.bayes.to_box`), 0.8 gave 1 divergent transition in 200,000 draws, 0.9 none,
-        for 6.7 leapfrog steps per draw. A dynamic model 0.8: in log coordinates with its
-        linear parameters integrated out, modified Bouc-Wen (UTFSM 10mm1Hz0x5A, AR(1), 1,000
-        warmup steps) took 25.4k gradients per device against 32.1k at 0.9, for a bulk / tail
-        ESS of 2,867 / 1,238 against 2,179 / 1,183.
+        `TARGET_ACCEPT` by the model (:meth:`for_model`): 0.9 for a static model (Stan: 0.8),
+        whose parameters on short records are strongly correlated, so that smaller steps
+        avoid divergent transitions at little cost; 0.8 for a dynamic model, whose every
+        leapfrog step is an integration (`benchmarks/posterior.md`).
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
     - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
         trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
@@ -95,13 +89,11 @@ class Sampler(eqx.Module):
         program. `None` (default): `"all"` on an accelerator; on a CPU `"chains"` for a
         forward-mode gradient (a dynamic model: one sequential integration, whose small
         steps leave a CPU's vector units idle, so a batch of chains costs little more than
-        one: modified Bouc-Wen on a UTFSM view, 4 gradients 18 ms batched against 4 x 7.8 ms),
-        else `"none"`. A vmapped NUTS step runs until the longest trajectory of its batch
-        ends, so where one chain's residuals already fill the vector units (tanh on a record)
-        the batch only adds work: tanh on the 30 UTFSM tests, 4 chains x 200 steps on the
-        swarm's views, 7.0 s vmapped against 1.7 s mapped (warm), and its compilation 12.6 s
-        against 5.9 s (`benchmarks/posterior.md`). With several CPU devices the chains of a
-        unit are also spread over them (:func:`chain_devices`).
+        one), else `"none"`: a vmapped NUTS step runs until the longest trajectory of its
+        batch ends, so where one chain's residuals already fill the vector units (a static
+        model on a record) the batch only adds work (`benchmarks/posterior.md`). With
+        several CPU devices the chains of a unit are also spread over them
+        (:func:`chain_devices`).
     - `continuations`: at most this many further rounds for the units whose chains missed
         R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged: round r runs those
         units' chains again from the mode with 2^r x the warmup and 2^r x the draws, every
@@ -129,9 +121,9 @@ class Sampler(eqx.Module):
 
     def for_model(self, dynamic: bool) -> Sampler:
         """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
-        for a dynamic model (one sequential integration: modified Bouc-Wen on a UTFSM view, one
-        gradient costs 1.9 log-density evaluations forward and 5.9 reverse), `"reverse"` for
-        a static one; the target acceptance `TARGET_ACCEPT` of the model's kind."""
+        for a dynamic model (one sequential integration, which reverse mode stores and
+        replays), `"reverse"` for a static one; the target acceptance `TARGET_ACCEPT` of the
+        model's kind."""
         kind = "dynamic" if dynamic else "static"
         return dataclasses.replace(
             self, gradient=self.gradient or ("forward" if dynamic else "reverse"),

@@ -33,11 +33,8 @@ MAX_U_VAR = 4.0
 #: starting standard deviation (the Gauss-Newton one, widened for AR(1) noise), at most the
 #: box width (the box width where it is undefined): the map is linear over the posterior's
 #: bulk unless that reaches within a few `d` of a bound. A posterior ridge that reaches into
-#: the map's curved zone is bent there, which a dense mass matrix cannot follow (modified
-#: Bouc-Wen on a UTFSM test, beta and gamma correlated -1.00 with gamma 6 /m below its
-#: bound: step sizes of 0.01 in the whitened coordinates at 0.5 and 0.1, 0.03-0.2 at 0.02
-#: but trees still of hundreds of steps, 10 warmup steps each); 0.5 is the value of the
-#: tanh and Dahl calibration (0 divergences in 200,000 draws each).
+#: the map's curved zone is bent there, which a dense mass matrix cannot follow; a smaller
+#: softness does not straighten it. The value is the calibration's (`benchmarks/posterior.md`).
 SOFTNESS = 0.5
 #: A direction of the unknowns whose Gauss-Newton standard deviation exceeds this many box
 #: widths is undetermined by the data: one unknown along it is held (see `undetermined`).
@@ -45,18 +42,16 @@ UNDETERMINED = 1.0
 #: An unknown with a lower bound >= 0 that lies at least this many standard deviations above
 #: it, at the start (the optimum, its Gauss-Newton sd) or at the mode (its Laplace sd: see
 #: :func:`to_log`), runs in log coordinates (`mrjax.bayes.to_box`): the damper models'
-#: scale parameters trade off as products (modified Bouc-Wen on a UTFSM view: c1, alpha and
-#: beta), a curved ridge in linear coordinates. In the posterior's whitened coordinates, the
-#: Hessian's largest eigenvalue at its draws fell from 6.2 to 4.3 (median) and its smallest
-#: rose from 0.13 to 0.21 (`benchmarks/posterior_geometry.py`). An unknown near its lower
-#: bound keeps the linear map, which near the bound is already exponential.
+#: scale parameters trade off as products, a curved ridge in linear coordinates and a
+#: straighter one in log coordinates (`benchmarks/posterior_geometry.py`). An unknown near
+#: its lower bound keeps the linear map, which near the bound is already exponential.
 LOG_AWAY = 10.0
 #: A linear unknown is integrated out of the log-density (:func:`collapsible`) where the
 #: posterior's mode lies at least this many of its Laplace standard deviations inside its box
 #: in every unit, and where its
 #: regressor at a second point differs by at most `AFFINE_TOL` of its largest entry.
-#: Integrating out modified Bouc-Wen's f0 and k1 (AR(1) noise on a UTFSM view) removed the
-#: funnel that f0 and rho make (the innovations see f0 only through (1 - rho) f0).
+#: Integrating out a force offset removes the funnel it makes with an AR(1) coefficient rho
+#: (the innovations see the offset only through (1 - rho) f0).
 COLLAPSE_MARGIN = 8.0
 AFFINE_TOL = 1e-9
 #: A `gauge` unknown is held for an undetermined direction where its component (in box
@@ -107,13 +102,12 @@ def _values(residual: Callable, theta_full, idx: np.ndarray, tf, data) -> tuple:
 def _jacobian_pass(residual: Callable, theta_full, free: tuple[int, ...], tf, data):
     """`(J, values)` of the residual blocks in the `free` unknowns `tf` (one forward-mode pass,
     one tangent per free unknown). Jitted: a sampler's program differentiates the log-density
-    at a dozen places (the mode search, the warmup, the draws, ...), and each traced the
-    integration's forward mode again (modified Bouc-Wen: 14 traces, 7.4 s of a cold run); a
-    jitted function is traced once per shape and reused."""
+    at a dozen places (the mode search, the warmup, the draws, ...), and each would trace the
+    integration's forward mode again; a jitted function is traced once per shape and
+    reused."""
     idx = np.asarray(free, int)
     # the values from the same forward pass as the Jacobian: one traced call, returned as
-    # output and aux (two calls traced two scans, and XLA kept both: modified Bouc-Wen on a
-    # UTFSM view, one gradient of the log-density 7.3 -> 5.4 ms for 2 chains)
+    # output and aux (two calls would trace two scans, and XLA keeps both)
     J, vals = jax.jacfwd(lambda t: (_values(residual, theta_full, idx, t, data),) * 2,
                          has_aux=True)(tf)
     return J, vals
@@ -124,8 +118,7 @@ def forward_values(residual: Callable, theta_full, free, th_free, data):
     differentiated in forward mode in `th_free`: their Jacobian (one pass with one tangent per
     free unknown, none for the held ones) is what reverse mode transposes. Through a
     sequential integration this is cheaper than a reverse pass, which stores and replays every
-    step (modified Bouc-Wen on a 1,001-sample view: one gradient costs 1.9 evaluations of the
-    log-density this way, 5.9 in reverse mode)."""
+    step (`benchmarks/posterior.md`)."""
     free = tuple(int(j) for j in np.asarray(free, int))
 
     @jax.custom_jvp
@@ -202,7 +195,7 @@ HESS_STEP = 1e-4
 #: holds every record, and its reverse-mode gradient the whole forward pass.
 HESS_BATCH = 8
 #: Eigenvalues of the mode's covariance, in those coordinates, are kept within these bounds
-#: (the narrowest direction measured on a UTFSM test was 2e-3, the widest 80).
+#: (wide of the narrowest and widest directions seen on real records).
 MODE_EIG = (1e-6, 1e3)
 
 
@@ -225,8 +218,7 @@ def gradient_error(target, prior, units, z0, L):
     differences of its values (step `FD_STEP`, the derivative of the computed log-density,
     which an exact tangent gives), in the whitened coordinates `w` (`z = z0 + L w`), over
     `GRADIENT_PROBES` standard normal points of every unit (non-finite ones skipped). Values
-    only: an exact tangent's gradient compiled in 6 s of a modified Bouc-Wen start, these in 1.
-    NUTS stays exact with an approximate gradient (its leapfrog map is still reversible and
+    only: an exact tangent's gradient would be a second compiled gradient. NUTS stays exact with an approximate gradient (its leapfrog map is still reversible and
     volume-preserving), but its energy error no longer vanishes with the step: where the
     gradient is off, the step-size adaptation shrinks the step towards 0 and every tree runs
     to its cap."""
@@ -254,8 +246,7 @@ def find_mode(target, prior, units, z0, L):
     by central differences of the gradient (`HESS_STEP`), |eigenvalues| floored, a
     Levenberg damping raised where a step does not climb. Each step evaluates the log-density
     and its gradient at the trial point and its 2 D neighbours in one batch: one gradient in
-    the compiled program (three copies compiled in 17 s of a modified Bouc-Wen start, one in
-    6 s). Returns `(w, logdensity, logdensity at 0, negative Hessian)` per unit (the first log-
+    the compiled program, not three. Returns `(w, logdensity, logdensity at 0, negative Hessian)` per unit (the first log-
     density and the Hessian at the point the last Newton step starts from)."""
 
     def one(unit, z, m):
@@ -518,8 +509,8 @@ def to_log(st: Start, z0: np.ndarray, cov: np.ndarray, moved: Sequence[int],
            centre: np.ndarray, sd: np.ndarray):
     """Host: the unknowns that run in log coordinates once the mode is known. The start's rule
     (:func:`log_rule`) reads the Gauss-Newton standard deviation, which AR(1) noise inflates
-    by up to 100 x (modified Bouc-Wen's c1 on a UTFSM view: 13,000 against a posterior's 380
-    N s/m); at the mode, `centre` (U, Kf) with its Laplace `sd` (U, Kf), more pass. For those,
+    by up to two orders of magnitude; at the mode, `centre` (U, Kf) with its Laplace `sd`
+    (U, Kf), more pass. For those,
     the position `z0` (U, D) and covariance `cov` (U, D, D) (the first `len(moved)` entries
     the moved unknowns' `u`) are carried into the new coordinates, to first order. Returns
     `(st, z0, cov)` with `st.log` and `st.soft` updated."""

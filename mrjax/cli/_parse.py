@@ -262,7 +262,7 @@ def add_data_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group(
         "data options",
         "How to read files with their own column names, units and layouts (default: each "
-        "format's conventions: long CSV with unit-suffixed headers, UTFSM txt t x v F, "
+        "format's conventions: long CSV with unit-suffixed headers, headerless txt t x v F, "
         "metadata from names like 25mm0x1Hz0x75A). UNIT is any unit of the right dimension "
         "(s, ms; m, mm, cm, in; mm/s, cm/s, in/s; N, kN, lbf; A, mA; V for a command). "
         "The flags override single keys of --spec. Check a spec with `mrjax inspect`.")

@@ -168,13 +168,10 @@ def compare(
     summed-AIC difference of the runner-up to the best (`CompareResult.margin_aic`).
 
     **Held-out validation** (:class:`HeldOut`). Each model's per-test fits of the training
-    tests are generalized over the current (`mrjax.generalize.generalize`, by every method of
-    `held_out.methods`) and the resulting laws are scored on the held-out tests
-    (`GeneralizedModel.evaluate`). A per-test fit does not depend on the other tests, so every
-    fold reuses the fits of its training tests (`FitResult.subset`) instead of fitting again:
-    each model is fitted once, in one compiled program for all tests, and each fold's tests
-    are padded to the full record length so that folds of equal size share the compiled
-    generalization.
+    tests are generalized over the current (by every method of `held_out.methods`) and the
+    laws are scored on the held-out tests. A per-test fit does not depend on the other tests,
+    so every fold reuses the fits of its training tests (`FitResult.subset`): each model is
+    fitted once, in one compiled program for all tests.
 
     **Arguments:**
 

@@ -5,9 +5,7 @@ problem rebuilt with its bounds, fixed parameters and transient) and its result,
 from __future__ import annotations
 
 import dataclasses
-import os
 import warnings
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -15,7 +13,7 @@ import numpy as np
 from .._errors import InputError
 from .._warnings import ResultWarning, WarningKind
 from ..bayes import Posterior, PosteriorFront, PredictiveBand, at_bounds, predictive_band
-from ..data import Batch, Condition
+from ..data import Batch
 from ..engine import PosteriorPlan, register_posterior
 from ..models import AbstractModel
 from ._problem import tests_problem
@@ -44,29 +42,16 @@ class TestPosterior(PosteriorFront):
         return dict(self.posterior.to_dict(), likelihood_data=self.data,
                     scored_samples=[int(n) for n in self.n_scored])
 
-    def predict_band(
-        self,
-        data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
-        *,
-        level: float = 0.95,
-        n_draws: int = 200,
-        noise_draws: int = 4,
-        seed: int = 0,
-    ) -> PredictiveBand:
-        """The posterior predictive force band of each condition on records `data` (see
-        `mrjax.bayes.predictive_band`), from `n_draws` draws spread evenly over the chains.
-
-        **Returns:** a :class:`mrjax.bayes.PredictiveBand` with the coverage of the measured
-        force.
-        """
-        if n_draws < 1:
-            raise InputError("n_draws must be positive")
+    def band(self, batch: Batch, n_draws: int, level: float, noise_draws: int,
+             seed: int) -> PredictiveBand:
+        """The band of `PosteriorFront.predict_band`: each record predicted with the draws of
+        the condition of its label (`mrjax.bayes.predictive_band`)."""
         post = self.posterior
         total = post.n_chains * post.n_draws
         pick = np.unique(np.linspace(0, total - 1, min(n_draws, total)).round().astype(int))
         theta = post.theta.reshape(post.n_units, total, -1)[:, pick]
         sigma = post.sigma.reshape(post.n_units, total)[:, pick]
-        return predictive_band(self.model, theta, sigma, self.labels, data, level=level,
+        return predictive_band(self.model, theta, sigma, self.labels, batch, level=level,
                                noise_draws=noise_draws, seed=seed)
 
     def __repr__(self) -> str:

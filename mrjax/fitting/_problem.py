@@ -54,9 +54,8 @@ def default_restarts(model: AbstractModel, n_conditions: int) -> int:
     and `mrjax.compare`): 1 for a static model; for a dynamic model `ceil(AUTO_SWARMS / C)`
     (2 for one test, 1 from two tests on): on a batch the tests' optima seed each other's
     retry (`mrjax.Polish(retry=True)`, see `mrjax.fitting.retry_starts`), which finds the
-    optima that one swarm per test misses (on the 30 UTFSM tests: every missed modified
-    Bouc-Wen test of seeds 0-4, where two swarms per test still missed one) at a fraction of
-    the cost of a second swarm per test; a lone test has no neighbour and gets two swarms."""
+    optima that one swarm per test misses, where a second swarm per test still misses some,
+    at a fraction of its cost; a lone test has no neighbour and gets two swarms."""
     if not model.dynamic:
         return 1
     return max(1, -(-AUTO_SWARMS // max(int(n_conditions), 1)))
@@ -216,8 +215,8 @@ class TestsProblem(AbstractProblem):
             # the swarm's integration: on the view's coarse grid step doubling would ask for
             # many steps, and this stage only has to bring the full-record polish close
             model = self._resolved(z, batch, swarm=True)
-            # in pages: the solves differ a lot in length (MBW on the UTFSM views: 5 to 118
-            # steps), and a page stops with its own slowest (warm 13.7 -> 11.2 s)
+            # in pages: the solves differ a lot in length, and a page stops with its own
+            # slowest
             page = auto_page_size(self.model, self.n_units) if self.devices is None else None
         else:
             batch, mask, page = self.batch, self.placed_mask, None

@@ -1,14 +1,12 @@
 """The retry of a per-test fit: every test polished once more from the best of its neighbours'
 optima, and the evidence of a possible local optimum (the spread of the two results).
 
-One swarm per test misses some optima of the many-parameter ODE models on real records (on the
-30 UTFSM tests, modified Bouc-Wen, one swarm per test: 3 to 4 of the 30 tests, 16-24 % NRMSE
-where the optimum is 7-9 %, different tests for different seeds), and more swarms per test
-only lower the odds (two swarms per test still missed one). The tests of one batch are measured
-on one damper, so the optimum of a test is, once its linear parameters are solved again, a good
-start for its neighbours (same current, other frequency or amplitude): from the best of them
-the polish lands in the optimum the swarm missed (every such test of seeds 0-4 found), at the
-cost of one more polish.
+One swarm per test misses some optima of the many-parameter ODE models on real records, on
+different tests for different seeds, and more swarms per test only lower the odds
+(`benchmarks/real_data.md`). The tests of one batch are measured on one damper, so the optimum
+of a test is, once its linear parameters are solved again, a good start for its neighbours
+(same current, other frequency or amplitude): from the best of them the polish lands in the
+optimum the swarm missed, at the cost of one more polish.
 
 `mrjax.fit` runs it over the whole batch after the chunks (`fit_in_chunks`): the donors of a
 test are chosen from the whole batch, so the result does not depend on the chunking.

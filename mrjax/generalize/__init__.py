@@ -20,8 +20,8 @@ inverse_current(gm, x, xdot, f_wanted, i_max=2.0)
 
 **Laws.** Each parameter follows a :class:`Law` of the current: `"poly"`,
 $p(i) = \\sum_m a_m i^m$ (coefficients in ascending powers), `"exp"`,
-$p(i) = \\exp(\\sum_m a_m i^m)$, i.e. $\\exp(a + b\\,i)$ at degree 1 (the law the UTFSM authors
-used for a Bouc-Wen $\\beta$), or `"sat"`, $p(i) = a + b(1 - e^{-i/s})$ (a change that saturates
+$p(i) = \\exp(\\sum_m a_m i^m)$, i.e. $\\exp(a + b\\,i)$ at degree 1 (a law used in the
+literature for a Bouc-Wen $\\beta$), or `"sat"`, $p(i) = a + b(1 - e^{-i/s})$ (a change that saturates
 above a few times the current s, like the yield force with the magnetic field).
 
 **Forms chosen by the data** (`laws="auto"`, :func:`choose_forms`): per parameter the form with

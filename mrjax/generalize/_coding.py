@@ -25,7 +25,7 @@ from ._rows import Rows
 #: yield within 10 um to 1 m of travel (Spencer's 1997 set: 21 um).
 DELTA_RANGE: tuple[float, float] = (1.0, 1e5)
 #: Range of q = gamma / delta with it (beta = (1 - q) delta): q = 0.5 is beta = gamma
-#: (Spencer's), q = 10 is beta = -0.9 gamma (the UTFSM fits).
+#: (Spencer's), q = 10 is beta = -0.9 gamma (seen on real dampers).
 Q_RANGE: tuple[float, float] = (0.0, 20.0)
 #: A non-negative parameter whose box spans two decades or more is searched as a logarithm
 #: (where the caller asks for it), from max(lower, LOG_FLOOR x upper) to its upper bound.

@@ -216,11 +216,9 @@ def generalize(
         release); or parameter name -> `"poly"`, `"exp"` ($\\exp(a + b\\,i)$ at degree 1) or
         `"sat"` ($a + b(1 - e^{-i/s})$, the scale s fitted to the per-test values), the others
         fixed. The forms are in `GeneralizedModel.laws` (`Law.form`; the criteria in
-        `report.law_criteria`), the summary and fit.json. Auto is the default because on the
-        UTFSM tests it predicts held-out currents better or as well: modified Bouc-Wen joint
-        8.90 % median against 11.08 % with the fixed forms, Dahl 15.63 against 16.31 %, tanh
-        the same forms, Bouc-Wen 14.93 against 14.77 % (`benchmarks/defaults.md`); on the
-        paper's grid it picks eq 24-29's forms.
+        `report.law_criteria`), the summary and fit.json. Auto is the default because on real
+        records it predicts held-out currents better or as well (`benchmarks/defaults.md`);
+        on the paper's grid it picks eq 24-29's forms.
     - `weighting`: two-step averaging, `"covariance"` (default; inverse-covariance weighted,
         generalized least squares) or `"equal"` (the paper's plain means).
     - `swarm`: the joint swarm's :class:`mrjax.Swarm` (default `Swarm(max_generations=100)`;

@@ -180,6 +180,29 @@ def identify(
     n_scored = int(mask.sum())
     if n_scored <= model.n_params:
         raise InputError(f"{n_scored} scored samples are too few for model {model.name!r}")
+    lo, hi, varying, n_levels = _command_levels(batch, cmd, mask)
+    mode, eta0, lag_box = _lag_mode(lag, varying, notes)
+    forms = choose_forms(model, None, None, degrees, laws, n_levels, unit)
+    layout = Layout(forms.kinds, forms.sizes, tuple(nodes(lo, hi, d + 1) for d in forms.degrees))
+    sw, po = check_settings(swarm, polish)
+    problem = _problem(model, batch, layout, bounds, transient, (mode, eta0, lag_box), sw,
+                       (cmd, mask, unit, lo, hi), notes)
+    timings = {"prepare": time.perf_counter() - t0}
+    out = solve_laws(problem, swarm=sw, polish=po,
+                     uncertainty=po.uncertainty if po is not None else True, key=key)
+    timings.update(out.outcome.timings)
+    timings["total"] = time.perf_counter() - t0
+    report = LawReport(law_choice="given", lag_mode=mode, notes=tuple(notes), timings=timings,
+                       outcome=out.outcome)
+    return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, report,
+                            command_unit=unit, lag=None if mode == "none" else out.eta,
+                            uncertainty=law_uncertainty_of(model, layout, out))
+
+
+def _command_levels(batch: Batch, cmd: np.ndarray, mask: np.ndarray
+                    ) -> tuple[float, float, bool, float]:
+    """`(lowest, highest command, whether a record's command varies in time, distinct
+    constant levels (inf where a command varies))` over the scored samples."""
     if cmd.ndim == 2:
         values = cmd[mask]
         varying = bool(np.ptp(values) > 0) and any(
@@ -187,16 +210,20 @@ def identify(
     else:
         values = np.repeat(cmd, mask.sum(axis=1))
         varying = False
-    lo, hi = float(values.min()), float(values.max())
     if varying:
-        n_levels = math.inf
-    else:
-        per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
-        n_levels = group_currents(per)[0].size
-    mode, eta0, lag_box = _lag_mode(lag, varying, notes)
-    forms = choose_forms(model, None, None, degrees, laws, n_levels, unit)
-    kinds, degs = forms.kinds, forms.degrees
-    layout = Layout(kinds, forms.sizes, tuple(nodes(lo, hi, d + 1) for d in degs))
+        return float(values.min()), float(values.max()), True, math.inf
+    per = cmd if cmd.ndim == 1 else np.array([c[m][0] for c, m in zip(cmd, mask)])
+    return float(values.min()), float(values.max()), False, group_currents(per)[0].size
+
+
+def _problem(model: AbstractModel, batch: Batch, layout: Layout, bounds: Any, transient: Any,
+             lag: tuple[str, float, tuple[float, float]], sw: Swarm | None, command: tuple,
+             notes: list[str]) -> LawsProblem:
+    """The laws problem of `identify`: the coding (a Bouc-Wen shape searched as
+    `(log delta, q)` where it can be), the boxes, the records and their views."""
+    mode, eta0, lag_box = lag
+    cmd, mask, unit, lo, hi = command
+    kinds = layout.kinds
     lo_b, hi_b = check_bounds(model, bounds)
     user = _user_bounded(model, bounds)
     names = model.param_names
@@ -218,10 +245,9 @@ def identify(
     D = coding.n_position
     if z_scale:
         notes.append(f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "
-                           f"delta(u0) = beta(u0) + gamma(u0)")
+                     f"delta(u0) = beta(u0) + gamma(u0)")
     full = packed_rows(batch, mask, cmd) if not model.dynamic and cmd.ndim == 1 else \
         make_rows(batch, mask, cmd)
-    sw, po = check_settings(swarm, polish)
     use_view = model.dynamic if sw is None or sw.view is None else bool(sw.view)
     view = None
     if use_view:
@@ -231,18 +257,8 @@ def identify(
     params = sw.params if sw is not None and sw.params is not None else PSOParams(
         window=25, min_generations=min(MIN_GENERATIONS_DYNAMIC if model.dynamic else 0,
                                        sw.generation_cap if sw is not None else 0))
-    problem = LawsProblem(model, layout, obj, lm_lo[:D], lm_hi[:D], lm_lo, lm_hi, full, view,
-                          np.linspace(lo, hi, N_LEVELS), pso_params=params)
-    timings = {"prepare": time.perf_counter() - t0}
-    out = solve_laws(problem, swarm=sw, polish=po,
-                     uncertainty=po.uncertainty if po is not None else True, key=key)
-    timings.update(out.outcome.timings)
-    timings["total"] = time.perf_counter() - t0
-    report = LawReport(law_choice="given", lag_mode=mode, notes=tuple(notes), timings=timings,
-                       outcome=out.outcome)
-    return make_generalized(model, layout, out.coef, "joint", out.rms, (lo, hi), "", None, report,
-                            command_unit=unit, lag=None if mode == "none" else out.eta,
-                            uncertainty=law_uncertainty_of(model, layout, out))
+    return LawsProblem(model, layout, obj, lm_lo[:D], lm_hi[:D], lm_lo, lm_hi, full, view,
+                       np.linspace(lo, hi, N_LEVELS), pso_params=params)
 
 
 def check_lag_bounds(lag_bounds) -> tuple[float, float]:

@@ -43,8 +43,7 @@ without per-sample commands packs its samples into rows of `PACK_ROW` (one curre
     the views to
     `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
     `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data; where
-    the records need the L-stable scheme (the stiff ODE fits, e.g. the UTFSM tests; then so
-    do their coarser views) the views' polish is skipped and the full records are polished
+    the records need the L-stable scheme (stiff ODE fits; then so do their coarser views) the views' polish is skipped and the full records are polished
     from the start to `VIEW_TOL_FACTOR` x `tol` (where the per-test polish on the views
     stops): there the coupled laws' optimum on the coarse views can lie in another basin than
     on the records. Each variable is scaled by the residuals' sensitivity to it at the start
@@ -243,7 +242,7 @@ class LawsProblem(AbstractProblem):
         stiffest level decides (its step doubling integrates every row of each group side by
         side). The answer is kept per `(nu, eta, data)` to float32 precision (a round trip
         through the polish's variables changes the last bits): the policy's step doubling
-        costs a few forward integrations (3-5 s on the 30 UTFSM tests)."""
+        costs a few forward integrations."""
         model = self.model
         if not model.dynamic or model.substeps is not None:
             return model
@@ -319,11 +318,10 @@ class LawsProblem(AbstractProblem):
 
     def polish_view(self, z: np.ndarray) -> bool:
         # a view samples its record at least as coarsely: where the full records need the
-        # L-stable scheme, so do the views (their own policy is not asked: 3-6 s). Measured on
-        # the UTFSM tests and Spencer's known answer: the coupled laws' optimum on the views
-        # (coarse grid, one L-stable step) can lie in another basin than the full records'
-        # (total RMS 74.3 N against 63.7 N, held-out median 27 % against 11 %), which a few
-        # full-record steps do not leave
+        # L-stable scheme, so do the views (their own policy is not asked). There the coupled
+        # laws' optimum on the views (coarse grid, one L-stable step) can lie in another basin
+        # than the full records', which a few full-record steps do not leave
+        # (`benchmarks/tuning.md`)
         if self.view is None:
             return False
         nu, eta = self.laws_of(z[0])

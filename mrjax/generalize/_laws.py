@@ -232,7 +232,7 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *
         (Bouc-Wen delta, beta, gamma, n on the |z|max = 1 scale; Dahl rho) is constant. The
         modified Bouc-Wen keeps Spencer's constant k0, k1 and f0 (= -k1 x0). Letting the shape
         parameters follow the current as well makes these strongly nonlinear models interpolate
-        badly between measured currents (measured on the UTFSM data).
+        badly between measured currents (`benchmarks/defaults.md`).
     - Any other model: the degrees it declares (`AbstractModel.law_degrees`, e.g.
         `mrjax.models.Parameter(..., degree=0)`), else degree 1, and 2 for `alpha`.
     - With `unit="V"` (laws of a command voltage) the modified Bouc-Wen takes Spencer's 1997

@@ -19,20 +19,16 @@ parameters at the record's current and its force (the model through the one inte
 plus Gaussian noise. The noise level of a measurement is the scale of the residuals: each
 fitted record's RMS residual [N] at the posterior-median laws (`LawPosterior.residual_rms`).
 Not the sampled noise level: with `noise="ar1"` on real records rho -> 1 and the marginal
-sigma is fixed by little more than each record's first sample (UTFSM, tanh laws: rho =
-0.99991, sigma up to 5 x max |F| while the residuals' RMS is 0.05-0.3 x max |F|: a band of
-that sigma covers everything); with `"iid"` the two agree. A fitted record (same label and
+sigma is fixed by little more than each record's first sample, often several times the
+residuals' RMS (a band of that sigma covers everything); with `"iid"` the two agree. A fitted record (same label and
 current) keeps its own level; a new record's is not known, and the rule (:data:`NOISE_RULE`)
 pools the fitted records' levels relative to their force scale (max |F| measured; root mean
 square) and scales the result by the new record's *predicted* force scale (max |F| of the
 median laws' force on it: no measured force needed). The pool is the fitted records of the
 new record's motion (same frequency and amplitude, at other currents) where there are any,
 else all of them. Why relative: on real records the noise is model error, which grows with
-the force (UTFSM, tanh laws: RMS residual 10-45 N at 0 A, peak force 170-225 N; 167-356 N
-at 1 A, peak force 1,240-1,560 N). Why by motion: the model error depends on the motion more
-than on the current (tanh laws on UTFSM: 5-27 % of max |F| over the six motions at 0 A,
-within a factor 2.2 over the currents of one motion); pooled over every motion, the 95 %
-band of the 12 held-out UTFSM tests covered 85 % of their force, 29 % on the worst
+the force. Why by motion: the model error depends on the motion more than on the current,
+and a band pooled over every motion covers some held-out records far less than its level
 (`benchmarks/posterior.md`).
 """
 
@@ -229,24 +225,12 @@ class LawPosterior(PosteriorFront):
         """The `GeneralizedModel` of the coefficients' posterior medians."""
         return with_coefficients(self.model, np.median(self.draws()[0], axis=0))
 
-    def predict_band(
-        self,
-        data: Batch | Condition | Sequence[Condition] | str | os.PathLike,
-        *,
-        level: float = 0.95,
-        n_draws: int = 200,
-        noise_draws: int = 4,
-        seed: int = 0,
-    ) -> PredictiveBand:
-        """The posterior predictive force band of the laws on records `data` at their own
-        (constant) currents, new or fitted (see :func:`law_band`), from `n_draws` draws.
-
-        **Returns:** a :class:`mrjax.bayes.PredictiveBand` with the coverage of the measured
-        force per record."""
-        if n_draws < 1:
-            raise InputError("n_draws must be positive")
+    def band(self, batch: Batch, n_draws: int, level: float, noise_draws: int,
+             seed: int) -> PredictiveBand:
+        """The band of `PosteriorFront.predict_band`: the laws at each record's own (constant)
+        current, new or fitted (see :func:`law_band`)."""
         return law_band(self.model, self.draws(n_draws)[0], self.residual_rms, self.records,
-                        self.currents, self.force_scale, data, motion=self.motion,
+                        self.currents, self.force_scale, batch, motion=self.motion,
                         level=level, noise_draws=noise_draws, seed=seed)
 
     def __repr__(self) -> str:

@@ -100,8 +100,8 @@ def _solve_one(residual, free_idx, max_steps, tol, jacobian, scaled, snap, z0, l
     if scaled:
         # each variable scaled by the residuals' sensitivity to moving it across its box (the
         # Jacobian's columns at the start, without the sine map's cos u, which vanishes on a
-        # bound): coupled unknowns have flat directions (e.g. the unloading shape q of the
-        # UTFSM joint laws) along which the unscaled solve crawled for 100 steps
+        # bound): coupled unknowns have flat directions (e.g. the unloading shape q of joint
+        # laws) along which an unscaled solve crawls
         J0 = jax.jacfwd(fn)(u0, args)
         slope = half * jnp.cos(u0)
         scale = jnp.linalg.norm(J0, axis=0) / jnp.where(slope > 0, slope, 1.0) * half
