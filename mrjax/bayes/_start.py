@@ -214,14 +214,14 @@ FD_STEP = 1e-5
 @eqx.filter_jit
 def gradient_error(target, prior, units, z0, L):
     """Largest difference |g - g_fd| of the log-density's gradient under `target` (an
-    approximate derivative, e.g. the L-stable scheme's implicit tangent) and central
-    differences of its values (step `FD_STEP`, the derivative of the computed log-density,
-    which an exact tangent gives), in the whitened coordinates `w` (`z = z0 + L w`), over
-    `GRADIENT_PROBES` standard normal points of every unit (non-finite ones skipped). Values
-    only: an exact tangent's gradient would be a second compiled gradient. NUTS stays exact with an approximate gradient (its leapfrog map is still reversible and
-    volume-preserving), but its energy error no longer vanishes with the step: where the
-    gradient is off, the step-size adaptation shrinks the step towards 0 and every tree runs
-    to its cap."""
+    approximate derivative, e.g. the L-stable scheme's implicit tangent) and central differences
+    of its values (step `FD_STEP`, the derivative of the computed log-density, which an exact
+    tangent gives), in the whitened coordinates `w` (`z = z0 + L w`), over `GRADIENT_PROBES`
+    standard normal points of every unit (non-finite ones skipped). Values only: an exact
+    tangent's gradient would be a second compiled gradient. NUTS stays exact with an approximate
+    gradient (its leapfrog map is still reversible and volume-preserving), but its energy error
+    no longer vanishes with the step: where the gradient is off, the step-size adaptation
+    shrinks the step towards 0 and every tree runs to its cap."""
     W = jax.random.normal(jax.random.key(0), (GRADIENT_PROBES, z0.shape[-1]), z0.dtype)
 
     def one(unit, z, m):
@@ -242,12 +242,13 @@ def gradient_error(target, prior, units, z0, L):
 @eqx.filter_jit
 def find_mode(target, prior, units, z0, L):
     """Each unit's posterior mode and the Hessian of the log-density there, in the whitened
-    coordinates `w` of the start (`z = z0 + L w`), by damped Newton from `w = 0`: the Hessian
-    by central differences of the gradient (`HESS_STEP`), |eigenvalues| floored, a
-    Levenberg damping raised where a step does not climb. Each step evaluates the log-density
-    and its gradient at the trial point and its 2 D neighbours in one batch: one gradient in
-    the compiled program, not three. Returns `(w, logdensity, logdensity at 0, negative Hessian)` per unit (the first log-
-    density and the Hessian at the point the last Newton step starts from)."""
+    coordinates `w` of the start (`z = z0 + L w`), by damped Newton from `w = 0`: the Hessian by
+    central differences of the gradient (`HESS_STEP`), |eigenvalues| floored, a Levenberg
+    damping raised where a step does not climb. Each step evaluates the log-density and its
+    gradient at the trial point and its 2 D neighbours in one batch: one gradient in the
+    compiled program, not three. Returns `(w, logdensity, logdensity at 0, negative Hessian)`
+    per unit (the first log-density and the Hessian at the point the last Newton step starts
+    from)."""
 
     def one(unit, z, m):
         ld = lambda w: log_density(target, prior, unit, z + m @ w)

@@ -39,15 +39,14 @@ without per-sample commands packs its samples into rows of `PACK_ROW` (one curre
     record's bandwidth),
     integrating with one L-stable step per sample;
 2. the candidates (the swarm's best and a start given, e.g. the two-step laws) ranked on the
-    full records; Levenberg-Marquardt (`mrjax.refine.solve_box`) on every unknown, first on
-    the views to
-    `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the sub-steps of
-    `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the data; where
-    the records need the L-stable scheme (stiff ODE fits; then so do their coarser views) the views' polish is skipped and the full records are polished
-    from the start to `VIEW_TOL_FACTOR` x `tol` (where the per-test polish on the views
-    stops): there the coupled laws' optimum on the coarse views can lie in another basin than
-    on the records. Each variable is scaled by the residuals' sensitivity to it at the start
-    (`lm_solve(scale=)`);
+    full records; Levenberg-Marquardt (`mrjax.refine.solve_box`) on every unknown, first on the
+    views to `tol`, then on the full records to `FULL_TOL_FACTOR` x `tol`, each with the
+    sub-steps of `mrjax.models.resolve_model` for the laws at `N_LEVELS` commands spanning the
+    data; where the records need the L-stable scheme (stiff ODE fits; then so do their coarser
+    views) the views' polish is skipped and the full records are polished from the start to
+    `VIEW_TOL_FACTOR` x `tol` (where the per-test polish on the views stops): there the coupled
+    laws' optimum on the coarse views can lie in another basin than on the records. Each
+    variable is scaled by the residuals' sensitivity to it at the start (`lm_solve(scale=)`);
 3. the total RMS on every scored sample of the full records, and the linearised std-errors of
     every coefficient and of $\\eta$ (`mrjax.refine.jacobian_uncertainty`, mapped to the
     coefficients by the delta method) with identifiability flags.

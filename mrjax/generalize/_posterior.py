@@ -15,22 +15,20 @@ laws' node values with the Gauss-Newton covariance of these unknowns on the like
 as the start of the mass matrix (`mrjax.bayes.sample`).
 
 **Predictive band on a new record.** Each kept draw gives the coefficients, hence the
-parameters at the record's current and its force (the model through the one integrator),
-plus Gaussian noise. The noise level of a measurement is the scale of the residuals: each
-fitted record's RMS residual [N] at the posterior-median laws (`LawPosterior.residual_rms`).
-Not the sampled noise level: with `noise="ar1"` on real records rho -> 1 and the marginal
-sigma is fixed by little more than each record's first sample, often several times the
-residuals' RMS (a band of that sigma covers everything); with `"iid"` the two agree. A fitted record (same label and
+parameters at the record's current and its force (the model through the one integrator), plus
+Gaussian noise. The noise level of a measurement is the scale of the residuals: each fitted
+record's RMS residual [N] at the posterior-median laws (`LawPosterior.residual_rms`). Not the
+sampled noise level: with `noise="ar1"` on real records rho -> 1 and the marginal sigma is fixed
+by little more than each record's first sample, often several times the residuals' RMS (a band
+of that sigma covers everything); with `"iid"` the two agree. A fitted record (same label and
 current) keeps its own level; a new record's is not known, and the rule (:data:`NOISE_RULE`)
 pools the fitted records' levels relative to their force scale (max |F| measured; root mean
-square) and scales the result by the new record's *predicted* force scale (max |F| of the
-median laws' force on it: no measured force needed). The pool is the fitted records of the
-new record's motion (same frequency and amplitude, at other currents) where there are any,
-else all of them. Why relative: on real records the noise is model error, which grows with
-the force. Why by motion: the model error depends on the motion more than on the current,
-and a band pooled over every motion covers some held-out records far less than its level
-(`benchmarks/posterior.md`).
-"""
+square) and scales the result by the new record's *predicted* force scale (max |F| of the median
+laws' force on it: no measured force needed). The pool is the fitted records of the new record's
+motion (same frequency and amplitude, at other currents) where there are any, else all of them.
+Why relative: on real records the noise is model error, which grows with the force. Why by
+motion: the model error depends on the motion more than on the current, and a band pooled over
+every motion covers some held-out records far less than its level (`benchmarks/posterior.md`)."""
 
 from __future__ import annotations
 
