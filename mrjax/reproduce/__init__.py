@@ -24,8 +24,9 @@ minutes (`mrjax fit` uses whole records). `quick=True` keeps two motions (1 Hz /
 
 1. *The paper's study* (Figs 7-10): the tanh and the Bouc-Wen model identified on every test by
    the paper's particle swarm with its statistical stop (`mrjax.fit(...,
-   swarm=mrjax.Swarm(mode="full"), polish=None)`: 50 particles, inertia 0.65, c1,max = c2,max = 2, confidence 0.905), same
-   seed for both. Its RMS and generations are the paper's Figs 9 and 10.
+   swarm=mrjax.Swarm(mode="full"), polish=None)`: 50 particles, inertia 0.65,
+   c1,max = c2,max = 2, confidence 0.905), same seed for both. Its RMS and generations are the
+   paper's Figs 9 and 10.
 2. *Accurate identification* (mrjax's method): the tanh model by the separable swarm (variable
    projection) and the Levenberg-Marquardt polish (`mrjax.fit` defaults), with std-errors. The
    paper's swarm result is also polished, for the "swarm alone vs swarm + polish" figure.
