@@ -284,8 +284,14 @@ class FitResult:
                 "starts_rms_N": None if self.starts_rms is None else list(self.starts_rms[i]),
             })
         doc = {
+            "format": FIT_JSON_FORMAT,
             "model": self.model.name,
             "model_source": source_of(self.model),
+            "fixed": {k: float(v) for k, v in dict(getattr(self.model, "fixed", {}) or {}).items()},
+            "bounds": None if self.bounds is None else {
+                side: dict(zip(names, np.asarray(self.bounds[side], float)))
+                for side in ("lower", "upper")},
+            "transient": self.transient,
             "method": self.method,
             "swarm": self.swarm_mode,
             "seed": None if self.seed is None else int(self.seed),
@@ -327,6 +333,9 @@ class FitResult:
         return "\n".join(out) + "\n"
 
 
+#: The version of fit.json's layout: 2 added `format`, `fixed`, `bounds` and `transient`
+#: (see CHANGELOG.md).
+FIT_JSON_FORMAT = 2
 #: The two polished starts of a test (the swarm's and the retry's) disagree when their RMS
 #: differ by more than this fraction of the lower: a warning (`spread_warnings`).
 SPREAD_MARGIN = 0.05

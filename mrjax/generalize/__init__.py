@@ -126,7 +126,6 @@ from ._laws import lag_current as lag_current
 from ._laws import nodes as nodes
 from ._model import MODEL_LAG as MODEL_LAG
 from ._model import GeneralizedModel as GeneralizedModel
-from ._model import LawReport as LawReport
 from ._model import LawUncertainty as LawUncertainty
 from ._posterior import NOISE_RULE as NOISE_RULE
 from ._posterior import LawPosterior as LawPosterior
@@ -141,5 +140,6 @@ from ._records import random_command as random_command
 from ._records import random_motion as random_motion
 from ._records import sine_record as sine_record
 from ._records import spencer_1997 as spencer_1997
+from ._report import LawReport as LawReport
 from ._rows import make_rows as make_rows
 from ._rows import record_order as record_order

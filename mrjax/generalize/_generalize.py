@@ -20,7 +20,8 @@ from ._coding import Layout, bounded_box, build_objective, law_values, total_rms
 from ._forms import choose_forms, forms_choice
 from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
-from ._model import GeneralizedModel, LawReport, LawUncertainty
+from ._model import GeneralizedModel, LawUncertainty
+from ._report import LawReport
 from ._rows import make_rows, packed_rows
 from ._two_step import covariances, two_step_coefficients
 

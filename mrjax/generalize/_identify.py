@@ -25,7 +25,8 @@ from ._forms import choose_forms
 from ._generalize import law_uncertainty_of, make_generalized
 from ._joint import N_LEVELS, LawsProblem, solve_laws
 from ._laws import Z_SCALE_MODELS, group_currents, nodes
-from ._model import GeneralizedModel, LawReport, batch_command
+from ._model import GeneralizedModel, batch_command
+from ._report import LawReport
 from ._rows import make_rows, packed_rows
 
 #: Default range of the command filter's rate eta [1/s] searched when the lag is fitted: time
