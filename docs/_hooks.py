@@ -11,6 +11,8 @@
   pages that show them, and `benchmarks/*.md` are included in those pages by snippets: one
   home for every measured number.
 - **Optional pages** that other work adds (`how-to/export.md`) join the nav once they exist.
+- **Sphinx roles** in docstrings (`:class:` or `:func:` before a name in backquotes) render as the code
+  they name: mkdocstrings renders markdown, and the roles would show as literal text.
 
 The functions below are imported by `tests/test_readme.py` too (by path: `docs/` is not a
 package).
@@ -21,12 +23,15 @@ from __future__ import annotations
 import argparse
 import ast
 import pkgutil
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "mrjax"
 API_PLACEHOLDER = "api/"
 CLI_PAGE = "reference/cli.md"
+#: A Sphinx role before inline code in rendered HTML (`:class:<code>Batch</code>`).
+SPHINX_ROLE = re.compile(r":(?:class|func|meth|attr|data|mod|obj|exc):(?=<code>)")
 #: Pages written by other work, joined to a nav section when the file exists: (section, title, path).
 OPTIONAL_PAGES = (("How-to guides", "Export to C and FMU", "how-to/export.md"),)
 
@@ -212,3 +217,7 @@ def on_files(files, config):
     for png in sorted((ROOT / "benchmarks").glob("*.png")):
         files.append(File.generated(config, f"benchmarks/{png.name}", abs_src_path=str(png)))
     return files
+
+
+def on_page_content(html, page, config, files):
+    return SPHINX_ROLE.sub("", html)
