@@ -107,3 +107,7 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
+
+
+__all__ = ["Chunks", "CompareResult", "FitResult", "InputError", "Polish", "ResultWarning",
+           "Sampler", "Status", "Swarm", "WarningKind", "compare", "fit", "posterior"]

@@ -26,3 +26,5 @@ from ._folds import Plan as Plan
 from ._folds import plan_validation as plan_validation
 from ._result import CRITERIA_NOTE as CRITERIA_NOTE
 from ._result import CompareResult as CompareResult
+
+__all__ = ["CompareResult", "HeldOut", "compare", "information_criteria", "n_free_parameters"]

@@ -46,3 +46,7 @@ from ._retry import RETRY_DONORS as RETRY_DONORS
 from ._retry import neighbours as neighbours
 from ._retry import retry_starts as retry_starts
 from ._run import polish_fit as polish_fit
+
+__all__ = ["ChunkPlan", "FitResult", "Journal", "ModelSwarm", "TestPosterior", "TestsProblem",
+           "chunk_plan", "fit", "fit_swarm", "parse_memory", "plan_chunks", "polish_fit", "save",
+           "tests_problem"]

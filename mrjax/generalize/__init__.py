@@ -143,3 +143,8 @@ from ._records import spencer_1997 as spencer_1997
 from ._report import LawReport as LawReport
 from ._rows import make_rows as make_rows
 from ._rows import record_order as record_order
+
+__all__ = ["ClosedLoop", "GeneralizedModel", "Inverse", "Lag", "Law", "LawPosterior", "LawReport",
+           "LawUncertainty", "NOISE_RULE", "SPENCER_1997", "choose_forms", "closed_loop", "command_record",
+           "default_degrees", "generalize", "identify", "inverse", "inverse_current", "lag_current",
+           "law_band", "random_command", "random_motion", "read_law_draws", "sine_record", "spencer_1997"]

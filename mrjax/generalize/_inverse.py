@@ -86,12 +86,6 @@ class Inverse(eqx.Module):
     out_of_reach: Bool[Array, "*T"]
     saturated: Bool[Array, "*T"]
 
-    def rms_error(self, where: ArrayLike | None = None) -> float:
-        """RMS of `error` [N] over the samples `where` (default: those within reach)."""
-        e = np.asarray(self.error, float)
-        w = ~np.asarray(self.out_of_reach) if where is None else np.asarray(where, bool)
-        return float(np.sqrt(np.mean(e[w] ** 2))) if w.any() else float("nan")
-
 
 @eqx.filter_jit
 def _static_core(model, laws, x, v, fd, lo, hi, n_grid, iters):

@@ -55,3 +55,6 @@ from ._uncertainty import Uncertainty as Uncertainty
 from ._uncertainty import intervals as intervals
 from ._uncertainty import jacobian_uncertainty as jacobian_uncertainty
 from ._uncertainty import uncertainty as uncertainty
+
+__all__ = ["DEFAULT_TOL", "Status", "Uncertainty", "jacobian_uncertainty", "lm_solve", "solve_box",
+           "uncertainty"]

@@ -79,3 +79,5 @@ from ._study import headline_generalized as headline_generalized
 from ._summary import COEF_TOLERANCE_PCT as COEF_TOLERANCE_PCT
 from ._summary import SUMMARY_SCHEMA as SUMMARY_SCHEMA
 from ._summary import summarize as summarize
+
+__all__ = ["PAPER_BOX", "Study", "compute", "run", "summarize"]
