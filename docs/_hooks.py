@@ -144,10 +144,11 @@ def _help_text(action: argparse.Action, prog: str) -> str:
 
 
 def _option_cell(action: argparse.Action) -> str:
+    """`--name` and its metavar as two code spans (a line breaks between them, not inside)."""
     names = ", ".join(action.option_strings) or (action.metavar or action.dest)
-    metavar = "" if action.nargs == 0 or not action.option_strings else \
-        f" {action.metavar or action.dest.upper()}"
-    return f"`{names}{metavar}`"
+    if action.nargs == 0 or not action.option_strings:
+        return f"`{names}`"
+    return f"`{names}` `{action.metavar or action.dest.upper()}`"
 
 
 def _command_section(name: str, parser: argparse.ArgumentParser) -> list[str]:
@@ -160,10 +161,10 @@ def _command_section(name: str, parser: argparse.ArgumentParser) -> list[str]:
                 and not isinstance(a, argparse._HelpAction)]
         if not rows:
             continue
-        out += [f"**{group.title[:1].upper() + group.title[1:]}**", "", "| option | meaning |",
-                "|---|---|"]
+        out += [f"**{group.title[:1].upper() + group.title[1:]}**", "",
+                '<div class="cli-options" markdown>', "", "| option | meaning |", "|---|---|"]
         out += [f"| {_option_cell(a)} | {_help_text(a, parser.prog)} |" for a in rows]
-        out.append("")
+        out += ["", "</div>", ""]
     return out
 
 

@@ -260,7 +260,7 @@ def test_cli_page_documents_every_command():
     page = _hooks().cli_page()
     for command in ("fit", "predict", "compare", "inspect", "reproduce", "models"):
         assert f"## `mrjax {command}`" in page, command
-    assert "`--model NAME" in page and "`--memory SIZE`" in page
+    assert "`--model` `NAME" in page and "`--memory` `SIZE`" in page
 
 
 def test_executed_notebooks_have_the_sources_of_notebooks():
