@@ -31,7 +31,7 @@ def grid():
 
 @pytest.fixture(scope="module")
 def grid_fit(grid):
-    return mrjax.fit("kwok", grid, seed=0)
+    return mrjax.fit("kwok", grid, key=0)
 
 
 def test_pso_lm_reaches_truth_on_paper_grid(grid, grid_fit):
@@ -77,7 +77,7 @@ def test_lm_alone_never_beats_the_swarm(grid, grid_fit):
     """Polish alone from the neutral box centre. On the benign tanh grid it happens to find the
     same optimum (honest result; the swarm's value shows on Bouc-Wen and real data, see
     benchmarks/); it must never do better than swarm + polish."""
-    lm = mrjax.fit("kwok", grid, method="lm", seed=0)
+    lm = mrjax.fit("kwok", grid, swarm=None, key=0)
     assert lm.swarm_mode == "none" and np.all(lm.generations == -1)
     assert np.all(np.isnan(lm.pso_rms))
     print(f"\nLM alone from the default start: median RMS {np.median(lm.rms):.2f} N, "
@@ -102,38 +102,39 @@ def test_result_api_and_json(grid_fit):
 
 def test_same_seed_same_result(grid):
     sub = grid.subset([0, 7, 20])
-    a = mrjax.fit("kwok", sub, method="pso", seed=11, uncertainty=False)
-    b = mrjax.fit("kwok", sub, method="pso", seed=11, uncertainty=False)
+    a = mrjax.fit("kwok", sub, polish=None, key=11)
+    b = mrjax.fit("kwok", sub, polish=None, key=11)
     assert np.array_equal(a.theta, b.theta) and np.array_equal(a.history, b.history)
 
 
 def test_full_swarm_and_fixed_generations(grid):
     sub = grid.subset([0, 35])
-    res = mrjax.fit("kwok", sub, method="pso", swarm_mode="full", generations=7, seed=0,
-                    uncertainty=False)
+    res = mrjax.fit("kwok", sub, swarm=mrjax.Swarm(mode="full", generations=7), polish=None,
+                    key=0)
     assert np.all(res.generations == 7) and not res.stopped_by_criterion.any()
     assert res.history.shape == (2, 8)
 
 
 def test_float32_swarm_reaches_the_float64_optimum(grid, grid_fit):
-    """`swarm_dtype="float32"`: the search runs in float32, the polish and results in float64,
+    """`Swarm(dtype="float32")`: the search runs in float32, the polish and results in float64,
     and the polished optimum is that of the float64 run."""
     idx = [0, 17, 35]
-    res = mrjax.fit("kwok", grid.subset(idx), seed=0, swarm_dtype="float32", uncertainty=False)
+    res = mrjax.fit("kwok", grid.subset(idx), key=0, swarm=mrjax.Swarm(dtype="float32"),
+                    polish=mrjax.Polish(uncertainty=False))
     assert res.theta.dtype == np.float64 and res.rms.dtype == np.float64
     assert np.allclose(res.rms, grid_fit.rms[idx], rtol=1e-6)
     assert np.all(res.rms <= res.pso_rms * (1 + 1e-12))
 
 
 def test_restarts_keep_the_best_swarm_per_condition(grid):
-    """`restarts=K`: K independent swarms per condition in one batch (copy j of condition i at
+    """`Swarm(restarts=K)`: K independent swarms per condition in one batch (copy j of condition i at
     row j*C + i of the repeated batch, same key); the best (lowest RMS) is kept."""
     from mrjax.fitting import fit_swarm
 
     sub = grid.subset([0, 20, 35])
     K, C = 3, sub.n_conditions
-    res = mrjax.fit("kwok", sub, method="pso", swarm_mode="full", seed=4, restarts=K,
-                    max_generations=15, uncertainty=False)
+    res = mrjax.fit("kwok", sub, swarm=mrjax.Swarm(mode="full", restarts=K, max_generations=15),
+                    polish=None, key=4)
     rep = fit_swarm(models.get("kwok"), sub.subset(np.tile(np.arange(C), K)),
                     key=jax.random.key(4), mode="full", max_generations=15)
     rms = np.asarray(rep.rms).reshape(K, C)
@@ -144,15 +145,17 @@ def test_restarts_keep_the_best_swarm_per_condition(grid):
         res.theta, np.asarray(rep.theta).reshape(K, C, -1)[best, np.arange(C)], rtol=1e-12)
     assert res.history.shape == (C, 16) and res.labels == sub.labels
     with pytest.raises(mrjax.InputError, match="restarts"):
-        mrjax.fit("kwok", sub, restarts=0)
+        mrjax.fit("kwok", sub, swarm=mrjax.Swarm(restarts=0))
 
 
 def test_bad_options(grid):
     sub = grid.subset([0])
-    with pytest.raises(mrjax.InputError, match="method"):
-        mrjax.fit("kwok", sub, method="newton")
+    with pytest.raises(mrjax.InputError, match="nothing to run"):
+        mrjax.fit("kwok", sub, swarm=None, polish=None)
+    with pytest.raises(mrjax.InputError, match="swarm must be a mrjax.Swarm"):
+        mrjax.fit("kwok", sub, swarm="pso")
     with pytest.raises(mrjax.InputError, match="swarm"):
-        mrjax.fit("kwok", sub, swarm_mode="ring")
+        mrjax.fit("kwok", sub, swarm=mrjax.Swarm(mode="ring"))
     with pytest.raises(mrjax.InputError, match="unknown model"):
         mrjax.fit("spring", sub)
 
@@ -175,7 +178,7 @@ def test_real_tests_match_careful_multistart(utfsm):
 def model_fit(request):
     name = request.param
     batch, truth = short_batch(name)
-    return name, batch, truth, mrjax.fit(name, batch, seed=0)
+    return name, batch, truth, mrjax.fit(name, batch, key=0)
 
 
 def test_fit_reaches_the_noise_floor_for_every_model(model_fit):
