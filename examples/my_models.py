@@ -1,13 +1,14 @@
-"""Two damper models declared through mrjax's contract (README, "Your own model").
+"""Damper models declared through mrjax's contract (`help(mrjax.models.Model)`).
 
 `mrjax fit DATA --model examples/my_models.py:BoucWen` fits the dynamic one. `BoucWen` is
 Bouc-Wen written from its equations only, with nothing hand-derived: mrjax's tests and
-`benchmarks/usermodel.py` compare it with the hand-written built-in `bouc_wen`.
+`benchmarks/usermodel.py` compare it with the hand-written built-in `bouc_wen`. `BoucWen1` is
+the same model with its exponent held at n = 1 (`mrjax.models.fix`): seven unknowns.
 """
 
 import jax.numpy as jnp
 
-from mrjax.models import Model, Parameter, safe_abs_pow
+from mrjax.models import Model, Parameter, fix, safe_abs_pow
 
 
 def tanh_force(p, x, xdot, state):  # static: one instant, no state
@@ -43,3 +44,5 @@ BoucWen = Model("my_bouc_wen", [
     Parameter("gamma", "1/m", 0.0, 5000.0),
     Parameter("n", "-", 1.0, 3.0),
 ], bw_force, rate=bw_rate, state_size=1)
+
+BoucWen1 = fix(BoucWen, {"n": 1.0})

@@ -41,7 +41,9 @@ from mrjax.models import (
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXAMPLES = os.path.join(REPO, "examples", "my_models.py")
-FAST = dict(n_particles=20, max_generations=20)
+#: A short swarm (the known answers need no more), alone and with two restarts per test.
+FAST = mrjax.Swarm(n_particles=20, max_generations=20)
+FAST2 = mrjax.Swarm(n_particles=20, max_generations=20, restarts=2)
 
 
 def within(est, truth, se, rel=0.05, z=2.0):
@@ -65,7 +67,7 @@ def test_declared_static_model_derives_the_split():
     """A static declaration: the parameter-free regressors (c, f0) go to the basis, alpha's
     (tanh(beta v)) is per particle; the affine form `design` rebuilds the force."""
     m = Model("t_static", P_TANH, _linear_tanh)
-    assert m.fixed_params == ("c", "f0") and m.varying_params == ("alpha",)
+    assert m.basis_params == ("c", "f0") and m.varying_params == ("alpha",)
     assert list(m.nonlinear_index) == [2] and m.log_params == ("beta",) and not m.dynamic
     th = m.params(c=3000.0, alpha=700.0, beta=100.0, f0=-250.0)
     t = np.linspace(0.0, 1.0, 300)
@@ -85,7 +87,7 @@ def test_bouc_wen_through_the_contract_equals_the_built_in(utfsm):
     record of the paper's grid and on a UTFSM record; the sub-step policy picks the same
     integration for both; the split (c, k, f0 | alpha) is found by itself."""
     mine, bw = get(f"{EXAMPLES}:BoucWen"), get("bouc_wen")
-    assert mine.fixed_params == bw.fixed_params and mine.varying_params == bw.varying_params
+    assert mine.basis_params == bw.basis_params and mine.varying_params == bw.varying_params
     th = bw.params(c=1500.0, k=2000.0, alpha=600.0, f0=-30.0, delta=1500.0, beta=800.0,
                    gamma=600.0, n=2.0)
     t = np.arange(2000) / 1000.0
@@ -133,7 +135,7 @@ def test_bouc_wen_through_the_contract_equals_the_built_in(utfsm):
      "force must return one value"),
     (lambda: Model("b10", P_TANH, lambda p, x, v, z: z[0], state_size=2,
                    rate=lambda p, x, v, z: jnp.zeros(3)),
-     r"rate must return dstate/dt of shape \(2,\)"),
+     r"rate must return dstate/dt of the state.s shape \(2,\)"),
     (lambda: Model("b11", P_TANH, lambda p, x, v, s: p.nope * v),
      r"force\(p, x, xdot, state\) fails on one sample: AttributeError: no parameter 'nope'"),
     (lambda: Model("b12", P_TANH, _linear_tanh, state_size=1), "state_size=1 needs rate"),
@@ -293,7 +295,8 @@ def test_literature_model_known_answer(name):
     coefficients, each within 2 std-errors is a coin toss, so those are checked jointly: their
     Mahalanobis distance is within the 99.9 % chi-square quantile."""
     m, th, batch = _literature_case(name, ((2.0, 0.008), (1.0, 0.012)))
-    r = mrjax.fit(m, batch, seed=0, swarm_view=False, **FAST)  # short records: no view
+    r = mrjax.fit(m, batch, swarm=mrjax.Swarm(n_particles=20, max_generations=20, view=False))
+    # (short records: no view)
     for i in range(batch.n_conditions):
         se = r.stderr[i]
         small = np.abs(th) < 5.0 * se
@@ -319,7 +322,7 @@ def tanh_case():
     conds = [simulate(m, truth[k], frequency=2.0, amplitude=0.008, current=i, cycles=1,
                       sample_rate=500, noise=5.0, seed=k) for k, i in enumerate((0.0, 1.0, 2.0))]
     batch = make_batch(conds)
-    fit = mrjax.fit(m, batch, seed=0, restarts=2, **FAST)
+    fit = mrjax.fit(m, batch, swarm=FAST2)
     return m, truth, batch, conds, fit
 
 
@@ -332,14 +335,15 @@ def test_fit_modes_with_a_declared_model(tanh_case):
     assert np.all(np.isfinite(fit.stderr))
     for i in range(3):
         assert within(fit.theta[i], truth[i], fit.stderr[i]).all(), i
-    full = mrjax.fit(m, batch, seed=0, method="pso", swarm_mode="full", **FAST)
+    full = mrjax.fit(m, batch, swarm=mrjax.Swarm(n_particles=20, max_generations=20,
+                                                 mode="full"), polish=None)
     assert np.all(np.isfinite(full.rms)) and np.all(full.rms >= fit.rms * 0.999)
-    lm = mrjax.fit(m, batch, seed=0, method="lm", uncertainty=False)
+    lm = mrjax.fit(m, batch, swarm=None, polish=mrjax.Polish(uncertainty=False))
     assert lm.swarm_mode == "none" and np.all(np.isfinite(lm.rms))
-    chunked = mrjax.fit(m, batch, seed=0, restarts=2, chunk_size=2, **FAST)
+    chunked = mrjax.fit(m, batch, swarm=FAST2, chunks=mrjax.Chunks(size=2))
     np.testing.assert_allclose(chunked.rms, fit.rms, rtol=1e-6)
     if os.environ.get("MRJAX_SLOW") == "1":  # the sharding is the models' own (test_parallel)
-        sharded = mrjax.fit(m, batch, seed=0, restarts=2, devices="all", **FAST)
+        sharded = mrjax.fit(m, batch, swarm=FAST2, chunks=mrjax.Chunks(devices="all"))
         np.testing.assert_allclose(sharded.rms, fit.rms, rtol=1e-6)
     doc = json.loads(fit.to_json())
     assert doc["model"] == "my_tanh" and doc["model_source"]["kind"] == "file"
@@ -350,7 +354,8 @@ def test_laws_inverse_and_closed_loop_of_a_declared_model(tanh_case):
     loop run on a declared model; the joint laws are no worse than the two-step ones."""
     m, truth, batch, _, fit = tanh_case
     two = generalize(fit, batch, method="two-step")
-    joint = generalize(fit, batch, method="joint", uncertainty=False, **FAST)
+    joint = generalize(fit, batch, method="joint", swarm=FAST,
+                       polish=mrjax.Polish(uncertainty=False))
     assert joint.total_rms <= two.total_rms * 1.001
     assert mrjax.generalize.default_degrees(m) == {"c": 1, "k": 1, "alpha": 2, "beta": 1,
                                                   "delta": 1, "f0": 1}
@@ -363,15 +368,14 @@ def test_laws_inverse_and_closed_loop_of_a_declared_model(tanh_case):
                      gain=5000.0, control="inverse", lag=None)
     assert np.all(np.isfinite(np.asarray(cl.force)))
     rec = command_record(joint, duration=1.0, sample_rate=500.0, seed=1)
-    ident = identify(rec, m, lag="none", seed=0, uncertainty=False, **FAST)
+    ident = identify(rec, m, lag="none", swarm=FAST, polish=mrjax.Polish(uncertainty=False))
     assert ident.model.name == "my_tanh" and np.isfinite(ident.total_rms)
 
 
 def test_compare_counts_the_declaration(tanh_case):
     m, _, batch, _, fit = tanh_case
     assert mrjax.comparison.n_free_parameters(m) == 6
-    res = mrjax.compare(batch, models=[f"{EXAMPLES}:Tanh"], generalize_methods=(), seed=0,
-                        restarts=2, **FAST)
+    res = mrjax.compare(batch, models=[f"{EXAMPLES}:Tanh"], held_out=None, swarm=FAST2)
     assert res.models == ("my_tanh",)
     np.testing.assert_allclose(res.fits["my_tanh"].rms, fit.rms, rtol=1e-6)
 

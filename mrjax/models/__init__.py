@@ -3,9 +3,11 @@
 Use `mrjax.models.get(name)`; see :class:`AbstractModel` for what every model provides. Declare
 your own with :class:`Model` and :class:`Parameter` (the force, and the state's rate, for one
 instant; mrjax derives the rest) and :func:`register` it, or name its file
-(`get("path/to/file.py:Name")`). This package is also the home of the one integrator
-(`integrate`), the one bounds check (`check_bounds`, `box_corners`) and the one sub-step policy
-(`resolve_model`, `choose_substeps`).
+(`get("path/to/file.py:Name")`). Hold parameters at values with :func:`fix`.
+
+This package is also the home of the one integrator (:func:`integrate`), the one bounds check
+(:func:`check_bounds`) and the one sub-step policy (:func:`resolve_model`), which the rest of
+mrjax uses.
 """
 
 from ._base import AbstractModel as AbstractModel
@@ -16,9 +18,11 @@ from ._bounds import check_box as check_box
 from ._declaration import Parameter as Parameter
 from ._declaration import Params as Params
 from ._declare import Model as Model
+from ._fixed import fix as fix
 from ._hysteretic import BoucWen as BoucWen
 from ._hysteretic import Dahl as Dahl
 from ._hysteretic import ModifiedBoucWen as ModifiedBoucWen
+from ._integrate import ODE as ODE
 from ._integrate import SCHEMES as SCHEMES
 from ._integrate import integrate as integrate
 from ._integrate import integrate_step as integrate_step
@@ -35,10 +39,19 @@ from ._registry import source_of as source_of
 from ._registry import unregister as unregister
 from ._static import Bingham as Bingham
 from ._static import Kwok as Kwok
-from ._substeps import MAX_SUBSTEPS as MAX_SUBSTEPS
-from ._substeps import STEP_TARGET as STEP_TARGET
-from ._substeps import TRACED_SUBSTEPS as TRACED_SUBSTEPS
-from ._substeps import choose_substeps as choose_substeps
-from ._substeps import doubled_substeps as doubled_substeps
+from ._substeps import box_points as box_points
 from ._substeps import exact_tangent as exact_tangent
 from ._substeps import resolve_model as resolve_model
+from ._symmetry import ScaleSymmetry as ScaleSymmetry
+
+__all__ = [
+    # models and their registry
+    "AbstractModel", "Bingham", "Kwok", "BoucWen", "ModifiedBoucWen", "Dahl",
+    "get", "names", "aliases", "register", "unregister", "load", "ENTRY_POINT_GROUP",
+    "source_of", "describe_source", "from_source",
+    # your own model, fixed parameters, the scale symmetry
+    "Model", "Parameter", "Params", "safe_abs_pow", "REFERENCE_PARAMS", "fix", "ScaleSymmetry",
+    # the integrator, its sub-step policy and the bounds check (used across mrjax)
+    "ODE", "integrate", "integrate_step", "SCHEMES", "resolve_model", "exact_tangent",
+    "box_points", "box_corners", "check_bounds", "check_box",
+]

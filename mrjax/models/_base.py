@@ -11,39 +11,48 @@ $$ f(t) = \\sum_j A_j(t;\\theta_{nl})\\,\\theta_{lin,j} + b(t;\\theta_{nl}). $$
 simulation can never disagree.
 """
 
-from __future__ import annotations
-
 import abc
-from typing import ClassVar
+import dataclasses
+from collections.abc import Mapping
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from equinox import AbstractVar
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InputError
-from ._integrate import ODE, SCHEMES, TANGENTS, integrate, integrate_step
-from ._substeps import TRACED_SUBSTEPS, choose_substeps, max_abs
+from ._integrate import (
+    ODE,
+    SCHEMES,
+    TANGENTS,
+    TRACED_SUBSTEPS,
+    choose_substeps,
+    integrate,
+    integrate_step,
+    max_abs,
+)
+from ._symmetry import ScaleSymmetry
 
 
 class AbstractModel(eqx.Module):
     """Base class of the damper models.
 
-    Class attributes (the public contract):
+    Every model provides (as class variables, like the hand-written models, or as
+    properties, like a declared `mrjax.models.Model`):
 
     - `name`: registry name, e.g. `"kwok"`.
     - `param_names`: parameter names in vector order.
-    - `units`: SI unit of each parameter.
-    - `default_lower`, `default_upper`: default bounds for fitting a damper of up to about 2 kN.
-    - `fixed_params`: linear parameters whose regressor does not depend on any parameter
-        (e.g. `c` with regressor $\\dot x$); their columns come from :meth:`basis`.
-    - `varying_params`: linear parameters whose regressor depends on the nonlinear ones
-        (e.g. `alpha` with regressor z); their columns come from :meth:`hysteresis`.
-    - `linear_params`: `fixed_params + varying_params`, all parameters the force is linear in.
-    - `log_params`: nonlinear parameters with a wide positive range, which the separable
-        swarm searches in log space.
-    - `dynamic`: whether the model has internal state integrated by the RK4 scan.
+    - `units`: SI unit of each parameter (text, e.g. `"N*s/m"`).
+    - `default_lower`, `default_upper`: default bounds of each parameter, SI units (a damper
+        of up to about 2 kN).
+    - `basis_params`: linear parameters whose regressor depends on no parameter (e.g. `c`
+        with regressor $\\dot x$); their columns come from :meth:`basis`.
+
+    and, where the defaults below do not fit, `varying_params`, `log_params`, `dynamic`,
+    `description`, `reference`, `rk4_limit`, `law_degrees`, `voltage_law_degrees`,
+    `scale_symmetry`.
 
     Instance fields (static):
 
@@ -56,24 +65,55 @@ class AbstractModel(eqx.Module):
         (`mrjax.models.resolve_model` sets `"implicit"` for a polish). Values are the same.
     """
 
-    name: ClassVar[str]
-    param_names: ClassVar[tuple[str, ...]]
-    units: ClassVar[tuple[str, ...]]
-    default_lower: ClassVar[tuple[float, ...]]
-    default_upper: ClassVar[tuple[float, ...]]
-    fixed_params: ClassVar[tuple[str, ...]]
-    varying_params: ClassVar[tuple[str, ...]] = ()
-    dynamic: ClassVar[bool] = False
-    log_params: ClassVar[tuple[str, ...]] = ()
-    description: ClassVar[str] = ""
-
-    #: Largest RK4 sub-step count the sub-step policy accepts for this model's polish before
-    #: it switches to the L-stable scheme (see `mrjax.models.resolve_model`).
-    rk4_limit: ClassVar[int] = 8
+    name: AbstractVar[str]
+    param_names: AbstractVar[tuple[str, ...]]
+    units: AbstractVar[tuple[str, ...]]
+    default_lower: AbstractVar[tuple[float, ...]]
+    default_upper: AbstractVar[tuple[float, ...]]
+    basis_params: AbstractVar[tuple[str, ...]]
 
     substeps: int | None = eqx.field(static=True, default=None)
     scheme: str | None = eqx.field(static=True, default=None)
     tangent: str | None = eqx.field(static=True, default=None)
+
+    # ----------------------------------------------------------------------------- defaults
+    @property
+    def varying_params(self) -> tuple[str, ...]:
+        """Linear parameters whose regressor depends on the nonlinear ones (e.g. `alpha` with
+        regressor z); their columns come from :meth:`hysteresis`."""
+        return ()
+
+    @property
+    def log_params(self) -> tuple[str, ...]:
+        """Nonlinear parameters with a wide positive range, which the separable swarm searches
+        in log space."""
+        return ()
+
+    @property
+    def dynamic(self) -> bool:
+        """Whether the model has an internal state, integrated by `mrjax.models.integrate`."""
+        return False
+
+    @property
+    def description(self) -> str:
+        """One line: the model's equations."""
+        return ""
+
+    @property
+    def reference(self) -> str:
+        """The model's literature reference, if any."""
+        return ""
+
+    @property
+    def rk4_limit(self) -> int:
+        """Largest RK4 sub-step count the sub-step policy accepts for this model's polish
+        before it switches to the L-stable scheme (see `mrjax.models.resolve_model`)."""
+        return 8
+
+    @property
+    def fixed_params(self) -> tuple[str, ...]:
+        """The former name of :attr:`basis_params` (kept for callers not yet moved)."""
+        return self.basis_params
 
     def __check_init__(self):
         if self.substeps is not None and (int(self.substeps) != self.substeps or self.substeps < 1):
@@ -98,8 +138,8 @@ class AbstractModel(eqx.Module):
 
     @property
     def linear_params(self) -> tuple[str, ...]:
-        """Names of the parameters the force is linear in: `fixed_params + varying_params`."""
-        return tuple(self.fixed_params) + tuple(self.varying_params)
+        """Names of the parameters the force is linear in: `basis_params + varying_params`."""
+        return tuple(self.basis_params) + tuple(self.varying_params)
 
     @property
     def linear_index(self) -> np.ndarray:
@@ -113,11 +153,43 @@ class AbstractModel(eqx.Module):
         return np.array([i for i, n in enumerate(self.param_names) if n not in lin], dtype=int)
 
     @property
-    def law_degrees(self) -> dict[str, int]:
-        """Default polynomial degrees of some parameters' laws over the current, by name, that
-        the model declares itself (see `mrjax.generalize.default_degrees`); empty: the
-        generic defaults."""
+    def law_degrees(self) -> Mapping[str, int]:
+        """Default polynomial degrees of some parameters' laws over the command (a coil current
+        in A), by name, that the model declares itself (see
+        `mrjax.generalize.default_degrees`); parameters not named take the generic defaults."""
         return {}
+
+    @property
+    def voltage_law_degrees(self) -> Mapping[str, int]:
+        """Default law degrees over a command *voltage* where they differ from
+        :attr:`law_degrees` (e.g. Spencer et al.'s voltage laws of the modified Bouc-Wen);
+        parameters not named take :attr:`law_degrees`."""
+        return {}
+
+    @property
+    def scale_symmetry(self) -> ScaleSymmetry | None:
+        """The rescaling of the state that leaves the force unchanged, if the model has one
+        (:class:`mrjax.models.ScaleSymmetry`: Bouc-Wen-type models, z -> s z), else None. A
+        fitted parameter vector is then one point of a one-parameter family with the same
+        force: a joint fit, a posterior or a parameter count must fix the scale."""
+        return None
+
+    # ----------------------------------------------------------------------------- fixed
+    @property
+    def fixed(self) -> dict[str, float]:
+        """Parameters held at a value (`mrjax.models.fix`), by name [SI units]; they are not
+        among `param_names`. Empty for a model whose parameters are all unknowns."""
+        return {}
+
+    @property
+    def unfixed(self) -> "AbstractModel":
+        """This model with every parameter an unknown (itself when nothing is fixed)."""
+        return self
+
+    def expand(self, theta: ArrayLike) -> ArrayLike:
+        """Parameters of :attr:`unfixed` (..., P') from this model's (..., P): the fixed
+        values inserted in their places (`theta` itself when nothing is fixed)."""
+        return theta
 
     def default_start(self) -> np.ndarray:
         """The neutral start used by `method="lm"`: the centre of the default box (the
@@ -146,11 +218,11 @@ class AbstractModel(eqx.Module):
         return np.array([float(values[n]) for n in self.param_names])
 
     def with_substeps(self, substeps: int | None, scheme: str | None = None,
-                      tangent: str | None = None) -> AbstractModel:
+                      tangent: str | None = None) -> "AbstractModel":
         """Return a copy with a fixed sub-step count and integration scheme (`"rk4"`, the
         default for a fixed count, or `"sdirk"`), or `None` for automatic; `tangent` how
         `"sdirk"` is differentiated (`"exact"`, the default, or `"implicit"`)."""
-        return type(self)(substeps=substeps, scheme=scheme, tangent=tangent)
+        return dataclasses.replace(self, substeps=substeps, scheme=scheme, tangent=tangent)
 
     # ----------------------------------------------------------------------------- dynamics
     def stiffness(self, theta: ArrayLike, vmax: float) -> float:
@@ -195,28 +267,25 @@ class AbstractModel(eqx.Module):
     # ----------------------------------------------------------------------------- force
     @abc.abstractmethod
     def basis(self, x: Float[ArrayLike, " T"], xdot: Float[ArrayLike, " T"]) -> Float[Array, "T p"]:
-        """Parameter-free regressors of `fixed_params`, shape (T, p) [N per unit parameter]."""
+        """Parameter-free regressors of `basis_params`, shape (T, p) [N per unit parameter]."""
 
-    def hysteresis(
-        self,
-        theta: Float[ArrayLike, "*T P"],
-        x: Float[ArrayLike, " T"],
-        xdot: Float[ArrayLike, " T"],
-        dt: Float[ArrayLike, "*T"],
-    ) -> tuple[Float[Array, "T k"], Float[Array, " T"]]:
+    def hysteresis(self, theta: Float[ArrayLike, "*T P"], x: Float[ArrayLike, " T"],
+                   xdot: Float[ArrayLike, " T"], dt: Float[ArrayLike, "*T"]
+                   ) -> tuple[Float[Array, "T k"], Float[Array, " T"]]:
         """Parameter-dependent part: regressors `Z` (T, k) of `varying_params` and the force
         `b` (T,) [N] of the nonlinear parameters alone. Entries of `theta` at linear positions
-        are ignored."""
-        xdot = jnp.asarray(xdot)
+        are ignored. A dynamic model's is its state equation's output along the integrated
+        states (:meth:`ode`, :meth:`states`); a static one without parameter-dependent terms
+        has none."""
+        theta = jnp.asarray(theta)
+        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
+        if self.dynamic:
+            return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)
         return jnp.zeros(xdot.shape + (0,), xdot.dtype), jnp.zeros_like(xdot)
 
-    def design(
-        self,
-        theta: Float[ArrayLike, "*T P"],
-        x: Float[ArrayLike, " T"],
-        xdot: Float[ArrayLike, " T"],
-        dt: Float[ArrayLike, "*T"],
-    ) -> tuple[Float[Array, "T L"], Float[Array, " T"]]:
+    def design(self, theta: Float[ArrayLike, "*T P"], x: Float[ArrayLike, " T"],
+               xdot: Float[ArrayLike, " T"], dt: Float[ArrayLike, "*T"]
+               ) -> tuple[Float[Array, "T L"], Float[Array, " T"]]:
         """Affine form of the force in the linear parameters.
 
         **Arguments:** as :meth:`force`. Entries of `theta` at linear positions are ignored.
@@ -240,8 +309,7 @@ class AbstractModel(eqx.Module):
         ode = self.ode()
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         m, scheme = self.integration(theta, xdot, dt)
-        return integrate(ode.rhs, ode.initial(x[0], xdot[0]), theta, x, xdot, dt, m,
-                         scheme=scheme, linearize=ode.linearize, box=ode.box, flow=ode.flow,
+        return integrate(ode, ode.initial(x[0], xdot[0]), theta, x, xdot, dt, m, scheme=scheme,
                          tangent=self.tangent or "exact")
 
     def initial_state(self, x0: ArrayLike, v0: ArrayLike) -> Array:
@@ -254,10 +322,8 @@ class AbstractModel(eqx.Module):
         to (`x1`, `v1`) over `dt` [s]: one interval of the integration of `force`, with the
         model's sub-steps and scheme (fix them with :meth:`with_substeps` or
         `resolve_model`; otherwise `TRACED_SUBSTEPS` RK4 steps)."""
-        ode = self.ode()
         m, scheme = self.integration(theta, jnp.stack([jnp.asarray(v0), jnp.asarray(v1)]), dt)
-        return integrate_step(ode.rhs, state, theta, x0, x1, v0, v1, dt, m, scheme=scheme,
-                              linearize=ode.linearize, box=ode.box, flow=ode.flow,
+        return integrate_step(self.ode(), state, theta, x0, x1, v0, v1, dt, m, scheme=scheme,
                               tangent=self.tangent or "exact")
 
     def force_at(self, theta: ArrayLike, state: ArrayLike, x: ArrayLike,
@@ -279,19 +345,15 @@ class AbstractModel(eqx.Module):
     def _combine(self, theta, F, Z, f):
         """`f` plus the linear parameters times their regressors `F`, `Z` (the force)."""
         names = self.param_names
-        for j, n in enumerate(self.fixed_params):
+        for j, n in enumerate(self.basis_params):
             f = f + theta[..., names.index(n)] * F[..., j]
         for j, n in enumerate(self.varying_params):
             f = f + theta[..., names.index(n)] * Z[..., j]
         return f
 
-    def force(
-        self,
-        theta: Float[ArrayLike, "*T P"],
-        x: Float[ArrayLike, " T"],
-        xdot: Float[ArrayLike, " T"],
-        dt: Float[ArrayLike, "*T"] = 1e-3,
-    ) -> Float[Array, " T"]:
+    def force(self, theta: Float[ArrayLike, "*T P"], x: Float[ArrayLike, " T"],
+              xdot: Float[ArrayLike, " T"], dt: Float[ArrayLike, "*T"] = 1e-3
+              ) -> Float[Array, " T"]:
         """Damper force [N] for a displacement record.
 
         **Arguments:**

@@ -3,7 +3,7 @@
 Bounds live with the model (`AbstractModel.bounds`); a fit may override them by name or as
 arrays. :func:`check_bounds` is the only place that validates them (the swarm, the polish, the
 joint generalization and the command line all call it), and :func:`box_corners` gives the
-stiffest points of a box for the sub-step policy.
+corners of a box (the stiffest points for the built-in models' monotone stiffness bounds).
 """
 
 from __future__ import annotations
@@ -86,6 +86,10 @@ def _side(model: AbstractModel, side: Side, default: np.ndarray) -> np.ndarray:
         return default.copy()
     if isinstance(side, Mapping):
         unknown = [k for k in side if k not in model.param_names]
+        held = [k for k in unknown if k in model.fixed]
+        if held:
+            raise InputError(f"parameter {held[0]!r} of model {model.name!r} is fixed at "
+                             f"{model.fixed[held[0]]:g}: it has no bounds")
         if unknown:
             raise InputError(f"bounds name unknown parameter {unknown[0]!r} of model "
                              f"{model.name!r}; its parameters: {', '.join(model.param_names)}")

@@ -4,9 +4,9 @@ from it on the host (see `mrjax.models.Model`, which turns it into a model).
 - :class:`Parameter`: one parameter (name, SI unit, default bounds, linear, log search, law
     degree); :class:`Params`: the parameters of one instant by name, as the user's functions
     receive them.
-- :class:`Declaration`: the checked declaration (the checks of `mrjax.models.Model`), the
-    split of the linear parameters into parameter-free and parameter-dependent regressors, and
-    the stiffness estimate of the sub-step policy.
+- :class:`Declaration`: the checked declaration (the checks of `mrjax.models.Model`, and the
+    list of those that passed), the split of the linear parameters into parameter-free and
+    parameter-dependent regressors, and the stiffness estimate of the sub-step policy.
 """
 
 from __future__ import annotations
@@ -26,7 +26,9 @@ import numpy as np
 from jaxtyping import Array
 
 from .._errors import InputError
-from ._integrate import integrate
+from ._integrate import ODE, integrate
+from ._names import reserved_names
+from ._symmetry import ScaleSymmetry
 
 #: Random points at which a declaration is checked (fixed key: the same answer every time).
 CHECK_POINTS = 8
@@ -56,6 +58,9 @@ class Parameter:
     - `log`: search it on a log scale (a wide positive range; needs `lower > 0`).
     - `degree`: default polynomial degree of its law over the current (`mrjax.generalize`);
         `None`: mrjax's generic default (1, and 2 for a parameter named `alpha`).
+
+    To hold a parameter at a value, declare it and fix it: `mrjax.models.fix(model, {name:
+    value})` (in the model's file, or per fit with `fixed=`).
     """
 
     name: str
@@ -127,7 +132,7 @@ class Declaration:
     """
 
     def __init__(self, name, parameters, force, rate, state_size, initial, box, description,
-                 reference, check):
+                 reference, check, symmetry=None):
         self.name = _checked_name(name, force)
         self.parameters = _checked_parameters(self.name, parameters)
         what = f"model {self.name!r}"
@@ -155,6 +160,7 @@ class Declaration:
         self.box_fn = box
         self.description = str(description or "")
         self.reference = str(reference or "")
+        self.checked = check
         ps = self.parameters
         self.param_names = tuple(p.name for p in ps)
         self.index = {n: i for i, n in enumerate(self.param_names)}
@@ -165,16 +171,23 @@ class Declaration:
         self.log_params = tuple(p.name for p in ps if p.log)
         self.degrees = {p.name: int(p.degree) for p in ps if p.degree is not None}
         h = hashlib.sha256()
-        for part in (self.name, repr(ps), str(S), *(_code_text(f) for f in
+        for part in (self.name, repr(ps), str(S), repr(symmetry), *(_code_text(f) for f in
                                                    (force, rate, initial, box))):
             h.update(part.encode())
         self.fingerprint = h.hexdigest()
+        #: the checks that passed, one line each (`mrjax models --model` prints them)
+        self.checks: list[str] = [_parameters_line(ps)]
         self._check_shapes()
         # the split of the linear parameters: parameter-free regressors (basis) first
         # unchecked: every regressor is computed per particle (right whatever it depends on)
-        fixed = self._check_values() if check else ()
-        self.fixed = tuple(n for n in self.linear if n in fixed)
-        self.varying = tuple(n for n in self.linear if n not in fixed)
+        on_basis = self._check_values() if check else ()
+        if not check:
+            self.checks.append("numerical checks skipped (check=False): every linear "
+                               "parameter's regressor is computed per particle")
+        self.on_basis = tuple(n for n in self.linear if n in on_basis)
+        self.varying = tuple(n for n in self.linear if n not in on_basis)
+        self.symmetry = self._checked_symmetry(symmetry, check)
+        self.checks = tuple(self.checks)
         self._stiff_fn = None
 
     def __repr__(self) -> str:
@@ -246,6 +259,7 @@ class Declaration:
             if y0.shape != (S,) and not (S == 1 and y0.shape == ()):
                 raise InputError(f"{what}: initial must give the state, shape ({S},), got "
                                  f"shape {tuple(y0.shape)}")
+            self.checks.append(f"initial(x0, v0): the state, shape ({S},)")
         state = sds((S,), jnp.result_type(float))
         out = run("force(p, x, xdot, state)", lambda c, a, b, s: self.force_fn(
             self.params(c), a, b, s), cols, x, v, state)
@@ -255,19 +269,23 @@ class Declaration:
                              f"one sample, mrjax maps it over the record")
         if not jnp.issubdtype(out.dtype, jnp.floating):
             raise InputError(f"{what}: force must return a float, got {out.dtype}")
+        self.checks.append("force(p, x, xdot, state): one float per instant")
         if S:
             r = run("rate(p, x, xdot, state)", lambda c, a, b, s: self.rate_fn(
                 self.params(c), a, b, s), cols, x, v, state)
-            ok = r.shape == (S,) or (S == 1 and r.shape in ((), (1,)))
-            if not ok:
-                raise InputError(f"{what}: rate must return dstate/dt of shape ({S},), got "
-                                 f"shape {tuple(r.shape)}")
+            if r.shape != (S,):
+                raise InputError(f"{what}: rate must return dstate/dt of the state's shape "
+                                 f"({S},), got shape {tuple(r.shape)}"
+                                 + (" (a scalar; return an array like the state, e.g. "
+                                    "jnp.stack([zdot]))" if r.shape == () else ""))
+            self.checks.append(f"rate(p, x, xdot, state): dstate/dt of shape ({S},)")
         if self.box_fn is not None:
             b = run("box(p)", lambda c: self.box_fn(self.params(c)), cols)
             if not (isinstance(b, (tuple, list)) and len(b) == 2 and all(
                     np.broadcast_shapes(tuple(e.shape), (S,)) == (S,) for e in b)):
                 raise InputError(f"{what}: box must return (lower, upper), each of shape "
                                  f"({S},) or a scalar")
+            self.checks.append(f"box(p): (lower, upper) of shape ({S},)")
 
     def _points(self):
         """`CHECK_POINTS` random instants (fixed seed): parameters uniform in the default box,
@@ -338,7 +356,7 @@ class Declaration:
             raise InputError(f"{what}: its force or rate cannot be differentiated by JAX: "
                              f"{type(e).__name__}" + (f": {msg}" if msg else "")) from None
         pr = {k: np.asarray(a, float) for k, a in pr.items()}
-        self._warn_rest({k: a[-1] for k, a in pr.items()})
+        rest = self._warn_rest({k: a[-1] for k, a in pr.items()})
         pr = {k: a[:-1] for k, a in pr.items()}
         th, x, v, s = th[:-1], x[:-1], v[:-1], s[:-1]
         finite = np.isfinite(pr["F"]) & np.all(np.isfinite(pr["g_t"]), axis=1)
@@ -388,14 +406,29 @@ class Declaration:
                     ~(m_s <= 1e-12 * scale))))
             if not any(mixed):
                 fixed.append(self.linear[j])
+        n_ok = int(finite.sum())
+        if self.linear:
+            self.checks.append(f"linear in {', '.join(self.linear)}: the force is affine in them "
+                               f"jointly (exact second derivatives at {n_ok} random points of "
+                               f"the default box)")
+            if self.state_size:
+                self.checks.append(f"rate independent of {', '.join(self.linear)}")
+            self.checks.append(
+                "regressors: parameter-free " + (", ".join(fixed) or "none")
+                + "; parameter-dependent " + (", ".join(n for n in self.linear if n not in fixed)
+                                              or "none"))
+        if rest:
+            self.checks.append(rest)
         return tuple(fixed)
 
-    def _warn_rest(self, pr: dict[str, np.ndarray]) -> None:
+    def _warn_rest(self, pr: dict[str, np.ndarray]) -> str | None:
         """Warn when the derivatives at the rest point (x = 0, xdot = 0, the initial state, the
-        centre of the box) are not finite: a polish's Jacobian would be NaN there."""
+        centre of the box) are not finite: a polish's Jacobian would be NaN there. Returns the
+        check line of those that are finite (None if neither)."""
         parts = [("force", pr["g_t"], pr["g_s"])]
         if self.state_size:
             parts.append(("rate", pr["JR_t"], pr["JR_s"]))
+        fine = []
         for label, d_t, d_s in parts:
             # (one infinite partial derivative makes every forward-mode column NaN, so the
             # culprit cannot be named)
@@ -403,31 +436,102 @@ class Declaration:
                 warnings.warn(f"model {self.name!r}: the derivatives of its {label} are not "
                               f"finite at rest (x = 0, xdot = 0, the initial state): a fit's "
                               f"Jacobian is NaN there; write |z|**n as "
-                              f"mrjax.models.safe_abs_pow(z, n)", stacklevel=7)
+                              f"mrjax.models.safe_abs_pow(z, n)", stacklevel=8)
+            else:
+                fine.append(label)
+        if fine:
+            return (f"derivatives of the {' and '.join(fine)} finite at rest (x = 0, xdot = 0, "
+                    f"the initial state)")
+        return None
+
+    def _checked_symmetry(self, sym: ScaleSymmetry | None, check: bool) -> ScaleSymmetry | None:
+        """The declared scale symmetry, checked: its names are parameters, its state exponents
+        one per state component, and (with `check`) the force and rate at the random points
+        are unchanged (the rate scaled like the state) by a rescaling, s = 2, and so is the
+        initial state."""
+        if sym is None:
+            return None
+        what = f"model {self.name!r}"
+        if not isinstance(sym, ScaleSymmetry):
+            raise InputError(f"{what}: scale_symmetry must be a mrjax.models.ScaleSymmetry, got "
+                             f"{type(sym).__name__}")
+        named = [e[0] for e in sym.exponents] + ([sym.power] if sym.power else [])
+        unknown = [n for n in named if n not in self.index]
+        if unknown:
+            raise InputError(f"{what}: scale_symmetry names {unknown[0]!r}, which is not one of "
+                             f"its parameters")
+        if len(sym.state) != self.state_size or not self.state_size:
+            raise InputError(f"{what}: scale_symmetry needs one state exponent per state "
+                             f"component ({self.state_size}), got {len(sym.state)}")
+        if not check:
+            return sym
+        th, x, v, st = self._points()
+        th2 = sym.rescale(th, self.param_names, 2.0)
+        st2 = st * 2.0 ** np.asarray(sym.state, float)
+
+        def both(t, xi, vi, y):
+            cols = param_columns(t)
+            return self.force_at(cols, xi, vi, y), self.rate_at(cols, xi, vi, y)
+
+        run = jax.jit(jax.vmap(both))
+        (f1, r1), (f2, r2) = (tuple(np.asarray(a, float) for a in run(
+            jnp.asarray(t), jnp.asarray(x), jnp.asarray(v), jnp.asarray(y)))
+            for t, y in ((th, st), (th2, st2)))
+        y0 = np.asarray(self.initial_at(0.01, 0.1), float)
+        e = 2.0 ** np.asarray(sym.state, float)
+        ok = np.isfinite(f1) & np.all(np.isfinite(r1), axis=1)
+
+        def moved(new, old):  # relative to each value and the largest one
+            return ~(np.abs(new - old) <= 1e-9 * (np.abs(old) + np.max(np.abs(old[ok]),
+                                                                        initial=0.0)))
+
+        problem = ("nothing is finite to check it on" if not ok.any() else
+                   "the force changes" if np.any(moved(f2, f1)[ok]) else
+                   "the rate does not scale like the state" if np.any(
+                       moved(r2, r1 * e)[ok]) else
+                   "the initial state changes" if np.any(y0 * (e - 1.0) != 0.0) else None)
+        if problem:
+            raise InputError(f"{what}: its scale_symmetry does not hold: {problem} under the "
+                             f"rescaling s = 2")
+        self.checks.append(f"scale symmetry: force and rate unchanged by a rescaling of the "
+                           f"state at {int(ok.sum())} random points")
+        return sym
 
     # ----------------------------------------------------------------------- stiffness
     def stiffness_rows(self, rows: np.ndarray, vmax: float) -> float:
-        """Largest |eigenvalue| [1/s] of the state Jacobian over the reference records of every
-        finite row (see the module docstring); 0 for a static model or vmax = 0."""
+        """Largest |eigenvalue| [1/s] of the state Jacobian along the reference records (and at
+        the state box's corners) of every finite row; 0 for a static model or vmax = 0.
+
+        A reference record on which the state diverges (a parameter set that is unstable at
+        that amplitude: the data's own integration diverges too, whatever the step) says
+        nothing about the step the data need and is left out, as are non-finite box corners;
+        a row that diverges on every record adds nothing. A Jacobian that is not finite on a
+        finite state makes the estimate `STIFFNESS_UNKNOWN`."""
         if not self.state_size or not (vmax > 0 and math.isfinite(vmax)):
             return 0.0
         if self._stiff_fn is None:
             self._stiff_fn = jax.jit(self._jacobians)
+        S = self.state_size
         best = 0.0
         for row in np.atleast_2d(np.asarray(rows, float)):
             if not np.all(np.isfinite(row)):
                 continue
-            J = np.asarray(self._stiff_fn(jnp.asarray(row), jnp.asarray(float(vmax))), float)
-            J = J.reshape(-1, self.state_size, self.state_size)
-            ok = np.all(np.isfinite(J), axis=(1, 2))
-            if not ok.all():
+            finite, records, corners = (np.asarray(a) for a in self._stiff_fn(
+                jnp.asarray(row), jnp.asarray(float(vmax))))
+            parts = [J for ok, J in zip(finite, records) if ok]
+            if not all(np.all(np.isfinite(J)) for J in parts):
                 return STIFFNESS_UNKNOWN
-            rho = float(np.max(np.abs(np.linalg.eigvals(J[ok])))) if ok.any() else 0.0
-            best = max(best, rho)
+            corners = corners.reshape(-1, S, S)
+            parts.append(corners[np.all(np.isfinite(corners), axis=(1, 2))])
+            for J in parts:
+                if J.size:
+                    best = max(best, float(np.max(np.abs(np.linalg.eigvals(J)))))
         return best
 
-    def _jacobians(self, row: Array, vmax: Array) -> Array:
-        """State Jacobians along the reference records of one parameter row (M, S, S)."""
+    def _jacobians(self, row: Array, vmax: Array) -> tuple[Array, Array, Array]:
+        """For one parameter row: whether the state stays finite along each reference record
+        (R,), the state Jacobians along them (R, n, S, S), and at the corners of a finite
+        state box at +-vmax (K, S, S), K = 0 without a box."""
         S = self.state_size
         cols = param_columns(row)
 
@@ -438,26 +542,36 @@ class Declaration:
             return jax.jacfwd(lambda yy: self.rate_at(cols, xi, vi, yy))(y)
 
         box = (lambda p: self.box_at(param_columns(p))) if self.box_fn is not None else None
-        out = []
+        records, finite = [], []
         n = STIFFNESS_SAMPLES * STIFFNESS_PERIODS
         phase = 2.0 * jnp.pi * jnp.arange(n) / STIFFNESS_SAMPLES
         for A in STIFFNESS_AMPLITUDES:
             w = vmax / A
             x, v = A * jnp.sin(phase), vmax * jnp.cos(phase)
             dt = 2.0 * jnp.pi / (w * STIFFNESS_SAMPLES)
-            ys = integrate(rhs, self.initial_at(x[0], v[0]), row, x, v, dt, 4, scheme="sdirk",
-                           box=box)
-            out.append(jax.vmap(jac)(ys, x, v))
+            ys = integrate(ODE(rhs, box=box), self.initial_at(x[0], v[0]), row, x, v, dt, 4,
+                           scheme="sdirk")
+            records.append(jax.vmap(jac)(ys, x, v))
+            finite.append(jnp.all(jnp.isfinite(ys)))
+        corners = [jnp.zeros((0, S, S), records[0].dtype)]
         if box is not None and S <= 4:
             lo, hi = self.box_at(cols)
             lo = jnp.broadcast_to(lo, (S,))
             hi = jnp.broadcast_to(hi, (S,))
             bits = (np.arange(2 ** S)[:, None] >> np.arange(S)[None, :]) & 1
-            corners = jnp.where(jnp.asarray(bits, bool), hi, lo)
-            corners = jnp.where(jnp.isfinite(corners), corners, 0.0)
+            ys = jnp.where(jnp.asarray(bits, bool), hi, lo)
+            ys = jnp.where(jnp.isfinite(ys), ys, 0.0)
             for sv in (1.0, -1.0):
-                out.append(jax.vmap(lambda y: jac(y, jnp.zeros(()), sv * vmax))(corners))
-        return jnp.concatenate(out, axis=0)
+                corners.append(jax.vmap(lambda y: jac(y, jnp.zeros(()), sv * vmax))(ys))
+        return jnp.stack(finite), jnp.stack(records), jnp.concatenate(corners, axis=0)
+
+
+def _parameters_line(ps: tuple[Parameter, ...]) -> str:
+    """The check line of the parameters."""
+    extra = [f"log search: {', '.join(p.name for p in ps if p.log)}"] if any(
+        p.log for p in ps) else []
+    return (f"{len(ps)} parameters ({', '.join(p.name for p in ps)}): identifiers with units "
+            f"and finite, ordered default bounds" + "".join(f"; {e}" for e in extra))
 
 
 def _where(decl: Declaration, theta, x, v) -> str:
@@ -472,8 +586,6 @@ def _checked_name(name: Any, force: Any) -> str:
     if not key.replace("_", "a").replace("-", "a").isalnum() or key != key.lower():
         raise InputError(f"model name {name!r} must be lower case letters, digits, '_' or '-'")
     # names of mrjax's own models are reserved: only mrjax's modules may declare them
-    from ._registry import reserved_names  # imported here: the registry imports this module
-
     module = getattr(force, "__module__", "") or ""
     if key.replace("-", "_") in reserved_names() and not module.startswith("mrjax."):
         raise InputError(f"model name {key!r} collides with a built-in model of mrjax; choose "

@@ -1,41 +1,11 @@
-r"""Your own model: a damper model declared by its physics, everything else derived with JAX.
-
-A user declares what only they know:
-
-- the parameters (:class:`Parameter`): name, SI unit, default bounds, whether the force is
-    linear in it, optionally a log-scale search and a default law degree over the current;
-- `force(p, x, xdot, state) -> F` [N] for one instant (`p.name` reads a parameter);
-- for a model with internal state: `state_size`, `rate(p, x, xdot, state) -> dstate/dt`,
-    optionally `initial(x0, v0)` (default zeros) and `box(p) -> (lower, upper)`, a region the
-    state never leaves (it makes the L-stable scheme's Newton iterates safer).
-
-:class:`Model` turns that into an :class:`mrjax.models.AbstractModel` that every path of mrjax
-accepts unchanged. It derives:
-
-- the **regressors of the linear parameters** for the separable swarm: the force is affine in
-    them, so its derivative with respect to each (`jax.jacfwd`) is its regressor, and the force
-    with all of them at zero is the rest. A regressor that depends on no parameter and no state
-    is computed once per record (`basis`); the others per particle (`hysteresis`);
-- the **state Jacobian** of the L-stable scheme (`jax.jacfwd` of `rate`, in the integrator);
-- a **stiffness estimate** for the sub-step policy: the largest $|\lambda|$ of the state
-    Jacobian along reference sine records at the largest |velocity| (and on the corners of a
-    finite box);
-- **NaN safety**: a non-finite force is an `inf` fitness (`mrjax.objective.masked_rms`), and a
-    derivative that is not finite at rest is reported when the model is declared.
-
-It checks the declaration once, each failure one :class:`mrjax.InputError` line naming the
-model and the parameter: bounds missing, inverted or non-finite; a log search with a lower
-bound <= 0; a name that collides with a built-in; a force or rate of the wrong shape or that
-fails to run; a parameter declared linear that is not (tested with exact second derivatives at
-random points: the force must be affine in the linear parameters jointly, and the rate must not
-depend on them).
-"""
+"""Your own model: :class:`Model`, a damper model declared by its physics, everything else
+derived with JAX (see its docstring)."""
 
 from __future__ import annotations
 
-import dataclasses
+import weakref
 from collections.abc import Callable, Sequence
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -46,6 +16,7 @@ from jaxtyping import Array, ArrayLike
 from ._base import AbstractModel
 from ._declaration import Declaration, Parameter, param_columns
 from ._integrate import ODE
+from ._symmetry import ScaleSymmetry
 
 
 def _float_of(*arrays: Array):
@@ -71,18 +42,67 @@ def _pointwise(fn: Callable, theta: Array, x: Array, xdot: Array, states: Array)
     return jax.tree.map(lambda a: a.reshape(shape + a.shape[1:]), out)
 
 
+class _Declared:
+    """A read-only attribute of a :class:`Model`: the declaration's attribute `attr`."""
+
+    def __init__(self, attr: str, doc: str | None = None):
+        self.attr = attr
+        self.__doc__ = doc
+
+    def __set_name__(self, owner, name):
+        if self.__doc__ is None:  # the contract's description of the attribute
+            self.__doc__ = f"See `AbstractModel`: the declared `{name}`."
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else getattr(obj.declaration, self.attr)
+
+
 class Model(AbstractModel):
-    r"""A damper model declared by its physics (see the module docstring of
-    `mrjax.models._declare` and the README section "Your own model").
+    r"""A damper model declared by its physics; mrjax derives the rest with JAX.
+
+    You declare what only you know: the parameters, the force for one instant and, for a model
+    with internal state, the state's rate. The result is an `AbstractModel` that every path of
+    mrjax accepts unchanged (fits, laws, posterior, prediction, the command line).
+
+    ```python
+    import jax.numpy as jnp
+    from mrjax.models import Model, Parameter, fix, safe_abs_pow
+
+    def force(p, x, xdot, z):               # one instant; z the state, shape (1,)
+        return p.c * xdot + p.k * x + p.alpha * z[0] + p.f0
+
+    def rate(p, x, xdot, z):                # dz/dt, the state's shape (1,)
+        zn = safe_abs_pow(z, p.n)           # |z|^n with finite derivatives at z = 0
+        return p.A * xdot - p.beta * jnp.abs(xdot) * jnp.sign(z) * zn - p.gamma * xdot * zn
+
+    BoucWenA = Model("bouc_wen_a", [
+        Parameter("c", "N*s/m", 0.0, 1e5, linear=True),
+        Parameter("k", "N/m", -1e5, 1e5, linear=True),
+        Parameter("alpha", "N/m", 0.0, 1e7, linear=True),
+        Parameter("f0", "N", -1e3, 1e3, linear=True),
+        Parameter("A", "-", 0.1, 10.0),
+        Parameter("beta", "1/m", -1e4, 1e4),
+        Parameter("gamma", "1/m", -1e4, 1e4),
+        Parameter("n", "-", 1.0, 3.0),
+    ], force, rate=rate, state_size=1)
+    BoucWenA1 = fix(BoucWenA, {"A": 1.0})   # A held at 1: seven unknowns
+    ```
+
+    `mrjax fit DATA --model file.py:BoucWenA1` (or `mrjax.fit(BoucWenA1, data)`) fits it;
+    `mrjax models --model file.py:BoucWenA1` lists it with the checks it passed.
 
     **Arguments:**
 
-    - `name`: the model's name (lower case; not one of mrjax's built-in names).
-    - `parameters`: a list of :class:`Parameter`, in vector order.
+    - `name`: the model's name (lower case letters, digits, `_`, `-`; not one of mrjax's
+        built-in names).
+    - `parameters`: a list of :class:`Parameter` (name, SI unit, default bounds, whether the
+        force is linear in it, a log-scale search, a default law degree), in vector order.
     - `force`: `force(p, x, xdot, state) -> F` [N] for one instant: `p` the parameters by
-        name (:class:`Params`), `x` [m], `xdot` [m/s], `state` (S,) (empty for a static model).
-        Any jittable JAX code; write `|z|**n` as `mrjax.models.safe_abs_pow(z, n)`.
-    - `rate`: `rate(p, x, xdot, state) -> dstate/dt` (S,) for a model with a state.
+        name (`p.c` or `p["c"]`, JAX scalars; :class:`Params`), `x` [m], `xdot` [m/s], `state`
+        (S,) (empty for a static model). Any jittable JAX code; write `|z|**n` as
+        `mrjax.models.safe_abs_pow(z, n)`.
+    - `rate`: `rate(p, x, xdot, state) -> dstate/dt`, an array of the state's shape (S,), for
+        a model with a state.
     - `state_size`: S, 0 for a static (memoryless) model.
     - `initial`: the state at the first sample, a function `initial(x0, v0) -> (S,)` of the
         first displacement [m] and velocity [m/s] or a constant (S,); default zeros.
@@ -90,11 +110,41 @@ class Model(AbstractModel):
         never leaves (+-inf allowed; from the nonlinear parameters only); the L-stable scheme
         clips its Newton iterates onto it.
     - `description`, `reference`: one line each, shown by `mrjax models`.
-    - `check`: run the numerical checks (default True; they cost about a second). Without
-        them every linear parameter's regressor is recomputed per particle.
-    - `substeps`, `scheme`, `tangent`: as for every model (`mrjax.models.AbstractModel`).
+    - `check`: run the numerical checks (default True; they take about a second, once per
+        declaration). Without them every linear parameter's regressor is recomputed per
+        particle.
+    - `scale_symmetry`: a :class:`ScaleSymmetry` if the force is unchanged by a rescaling of
+        the state (a Bouc-Wen-type z; checked at declaration): joint laws, the posterior and
+        the parameter count then fix the scale, as for the built-in Bouc-Wen models.
+    - `substeps`, `scheme`, `tangent`: as for every model (`AbstractModel`).
 
-    Raises :class:`mrjax.InputError` (one line) for a bad declaration.
+    **What mrjax derives:**
+
+    - the **regressors of the linear parameters** for the separable swarm: the force is
+        affine in them, so its derivative with respect to each (`jax.jacfwd`) is its regressor
+        and the force with all of them at zero is the rest. A regressor that depends on no
+        parameter and no state is computed once per record (`basis`), the others per particle
+        (`hysteresis`);
+    - the **state Jacobian** of the L-stable scheme (`jax.jacfwd` of `rate`);
+    - a **stiffness estimate** for the sub-step policy (`stiffness`): the largest
+        $|\lambda|$ of the state Jacobian along reference sine records at the data's largest
+        velocity (records on which the state diverges left out) and at the corners of a finite
+        state box;
+    - **NaN safety**: a non-finite force is an `inf` fitness.
+
+    **What it checks**, once, at declaration (copies share the result): each failure is one
+    :class:`mrjax.InputError` line naming the model and the parameter: bounds missing,
+    inverted or non-finite; a log search with a lower bound <= 0; a name that collides with a
+    built-in; a force that does not give one float per instant, a rate not of the state's
+    shape (a scalar for a (1,) state included), an initial state or box of the wrong shape, or
+    any of them failing to run; a parameter declared linear that is not (exact second
+    derivatives at random points of the default box: the force must be affine in the linear
+    parameters jointly, and the rate must not depend on them). A derivative that is not finite
+    at rest (x = xdot = 0, the initial state) is a warning. :attr:`checks` lists the checks
+    that passed.
+
+    **Fixed parameters:** declare the parameter and hold it with `mrjax.models.fix` (in the
+    file, as above, or per fit: `mrjax.fit(model, data, fixed={"A": 1.0})`).
     """
 
     declaration: Declaration = eqx.field(static=True)
@@ -105,81 +155,50 @@ class Model(AbstractModel):
                  rate: Callable | None = None, state_size: int = 0,
                  initial: Callable | ArrayLike | None = None, box: Callable | None = None,
                  description: str = "", reference: str = "", check: bool = True,
-                 substeps: int | None = None, scheme: str | None = None,
-                 tangent: str | None = None):
-        self.declaration = Declaration(name, parameters, force, rate, state_size, initial, box,
-                                       description, reference, check)
+                 scale_symmetry: ScaleSymmetry | None = None, substeps: int | None = None,
+                 scheme: str | None = None, tangent: str | None = None):
+        self.declaration = _declared(name, parameters, force, rate, state_size, initial, box,
+                                     description, reference, check, scale_symmetry)
         self.substeps = substeps
         self.scheme = scheme
         self.tangent = tangent
 
     # ----------------------------------------------------------------------- metadata
-    @property
-    def name(self) -> str:
-        return self.declaration.name
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        return self.declaration.param_names
-
-    @property
-    def units(self) -> tuple[str, ...]:
-        return self.declaration.units
-
-    @property
-    def default_lower(self) -> tuple[float, ...]:
-        return self.declaration.lower
-
-    @property
-    def default_upper(self) -> tuple[float, ...]:
-        return self.declaration.upper
-
-    @property
-    def fixed_params(self) -> tuple[str, ...]:
-        return self.declaration.fixed
-
-    @property
-    def varying_params(self) -> tuple[str, ...]:
-        return self.declaration.varying
-
-    @property
-    def log_params(self) -> tuple[str, ...]:
-        return self.declaration.log_params
+    name = _Declared("name")
+    param_names = _Declared("param_names")
+    units = _Declared("units")
+    default_lower = _Declared("lower")
+    default_upper = _Declared("upper")
+    basis_params = _Declared("on_basis")
+    varying_params = _Declared("varying")
+    log_params = _Declared("log_params")
+    state_size = _Declared("state_size", "Size S of the internal state (0 for a static model).")
+    description = _Declared("description")
+    reference = _Declared("reference")
+    scale_symmetry = _Declared("symmetry")
 
     @property
     def dynamic(self) -> bool:
         return self.declaration.state_size > 0
 
     @property
-    def state_size(self) -> int:
-        """Size S of the internal state (0 for a static model)."""
-        return self.declaration.state_size
-
-    @property
-    def description(self) -> str:
-        return self.declaration.description
-
-    @property
-    def reference(self) -> str:
-        """The model's literature reference, if declared."""
-        return self.declaration.reference
-
-    @property
     def law_degrees(self) -> dict[str, int]:
         return dict(self.declaration.degrees)
+
+    @property
+    def checks(self) -> tuple[str, ...]:
+        """The declaration's checks that passed, one line each (see the class docstring)."""
+        return self.declaration.checks
 
     def with_substeps(self, substeps: int | None, scheme: str | None = None,
                       tangent: str | None = None) -> Model:
         """A copy with a fixed sub-step count and scheme (as `AbstractModel.with_substeps`),
         sharing this model's checked declaration."""
-        new = object.__new__(Model)
-        for f in dataclasses.fields(self):
-            object.__setattr__(new, f.name, getattr(self, f.name))
-        object.__setattr__(new, "substeps", substeps)
-        object.__setattr__(new, "scheme", scheme)
-        object.__setattr__(new, "tangent", tangent)
-        new.__check_init__()
-        return new
+        d = self.declaration
+        return Model(d.name, d.parameters, d.force_fn, rate=d.rate_fn, state_size=d.state_size,
+                     initial=d.initial_value, box=d.box_fn, description=d.description,
+                     reference=d.reference, check=d.checked, scale_symmetry=d.symmetry,
+                     substeps=substeps, scheme=scheme, tangent=tangent)
 
     # ----------------------------------------------------------------------- derived
     def _states(self, theta, x, xdot, dt):
@@ -214,7 +233,7 @@ class Model(AbstractModel):
         d = self.declaration
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
         dtype = _float_of(x, xdot)
-        fixed = [d.index[n] for n in d.fixed]
+        fixed = [d.index[n] for n in d.on_basis]
         if not fixed:
             return jnp.zeros(x.shape + (0,), dtype)
         lo, hi = np.asarray(d.lower), np.asarray(d.upper)
@@ -277,5 +296,29 @@ class Model(AbstractModel):
         """Largest |eigenvalue| [1/s] of the state Jacobian (`jax.jacfwd` of `rate`) along
         reference sine records with velocity amplitude `vmax` [m/s] and amplitudes of 1 mm to
         1 m, integrated from the initial state, and on the corners of a finite box; the
-        maximum over rows of `theta` ((P,) or (N, P)). Not finite: `STIFFNESS_UNKNOWN`."""
+        maximum over rows of `theta` ((P,) or (N, P)); records on which the state diverges are
+        left out, and where nothing finite is left the estimate is `STIFFNESS_UNKNOWN`."""
         return self.declaration.stiffness_rows(np.asarray(theta, float), float(vmax))
+
+
+#: Checked declarations by their inputs, so that a copy of a model (other sub-steps) and a model
+#: declared again from the same functions share one declaration and its checks.
+_DECLARATIONS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
+def _declared(name, parameters, force, rate, state_size, initial, box, description, reference,
+              check, symmetry) -> Declaration:
+    """The checked declaration of these inputs, made once."""
+    args = (name, parameters, force, rate, state_size, initial, box, description, reference,
+            check, symmetry)
+    try:
+        key: Any = (name, tuple(parameters), force, rate, state_size,
+                    initial if initial is None or callable(initial) else id(initial), box,
+                    description, reference, check, symmetry)
+        hash(key)
+    except TypeError:  # unhashable input: checked (and refused) without the cache
+        return Declaration(*args)
+    found = _DECLARATIONS.get(key)
+    if found is None:
+        found = _DECLARATIONS[key] = Declaration(*args)
+    return found

@@ -4,7 +4,8 @@ All three define only their right-hand side; the shared RK4 `lax.scan` in `_inte
 
 A note on the scale of z. The equations are invariant under $z \\to s z$ with
 $\\alpha \\to \\alpha/s$, $\\delta \\to s\\delta$, $\\beta, \\gamma \\to s^{1-n}\\beta, s^{1-n}\\gamma$,
-so one of (alpha, delta, beta, gamma) is redundant. mrjax's *default bounds* assume a
+so one of (alpha, delta, beta, gamma) is redundant (`AbstractModel.scale_symmetry`). mrjax's
+*default bounds* assume a
 dimensionless z of order one, so `alpha` is in N and `delta`, `beta`, `gamma` in 1/m.
 Spencer et al.'s 1997 set (PAPER.md) measures z in metres (alpha in N/m, beta and gamma in
 m^-n); the equations are the same and `force` accepts either.
@@ -12,6 +13,8 @@ m^-n); the equations are the same and `force` accepts either.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import ClassVar
 
 import jax.numpy as jnp
@@ -19,6 +22,12 @@ import numpy as np
 
 from ._base import AbstractModel, split_theta
 from ._integrate import ODE
+from ._symmetry import ScaleSymmetry
+
+#: The z-scale of the Bouc-Wen evolution (see the module docstring): alpha / s, delta * s,
+#: beta and gamma * s^(1 - n); canonical |z|max = (delta / (beta + gamma))^(1/n) = 1.
+BW_EXPONENTS = (("alpha", -1.0, 0.0), ("delta", 1.0, 0.0), ("beta", 1.0, -1.0),
+                ("gamma", 1.0, -1.0))
 
 
 def bw_zdot_lin(z, u, delta, beta, gamma, n):
@@ -79,6 +88,16 @@ def dahl_flow(w, rho, v0, v1, h):
     return s2 + (w - s2) * jnp.exp(-rho * i2)
 
 
+def _zero_state(x0, v0):
+    """The state (1,) at the first sample of a one-state model: 0."""
+    return jnp.zeros((1,), jnp.asarray(x0).dtype)
+
+
+def _state_regressor(states, theta, x, xdot):
+    """`(Z, b)` of a model whose one state is the regressor of its varying parameter."""
+    return states, jnp.zeros_like(jnp.asarray(xdot))
+
+
 def _bw_rate(delta, beta, gamma, n, vmax):
     """|d zdot / d z| bound: n (|beta|+|gamma|) |z|max^(n-1) vmax, |z|max the steady state."""
     s = abs(beta) + abs(gamma)
@@ -106,12 +125,17 @@ class BoucWen(AbstractModel):
     default_upper: ClassVar[tuple[float, ...]] = (
         100000.0, 100000.0, 2500.0, 1000.0, 5000.0, 5000.0, 5000.0, 3.0,
     )
-    fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
+    basis_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True
     rk4_limit: ClassVar[int] = 3  # above, the L-stable scheme's Jacobian pass is cheaper
     description: ClassVar[str] = "Bouc-Wen: f = c*v + k*x + alpha*z + f0, z' = BW(delta, beta, gamma, n)"
-
+    #: force scales linear in the current, the hysteretic force quadratic (it saturates with
+    #: the field), the loop's shape constant (on the |z|max = 1 scale)
+    law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(c=1, k=1, alpha=2, f0=1,
+        delta=0, beta=0, gamma=0, n=0))
+    scale_symmetry: ClassVar[ScaleSymmetry] = ScaleSymmetry(
+        BW_EXPONENTS, gauge="delta", balance=("beta", "gamma"), power="n", state=(1.0,))
 
     def basis(self, x, xdot):
         x, xdot = jnp.asarray(x), jnp.asarray(xdot)
@@ -138,18 +162,7 @@ class BoucWen(AbstractModel):
             zm = bw_zmax(*shape(p))
             return -zm, zm
 
-        def initial(x0, v0):
-            return jnp.zeros((1,), jnp.asarray(x0).dtype)
-
-        def output(states, theta, x, xdot):
-            return states, jnp.zeros_like(jnp.asarray(xdot))
-
-        return ODE(rhs=rhs, initial=initial, output=output, linearize=lin, box=box)
-
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
-        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)
+        return ODE(rhs=rhs, initial=_zero_state, output=_state_regressor, linearize=lin, box=box)
 
 
 class ModifiedBoucWen(AbstractModel):
@@ -165,10 +178,9 @@ class ModifiedBoucWen(AbstractModel):
     `beta` [1/m], `gamma` [1/m], `n` [-], `f0` [N] ($= -k_1 x_0$). Linear: k1, f0.
 
     The default box lets `beta` be negative (down to -5000 /m): the Bouc-Wen loop shape only
-    needs $\\gamma + \\beta > 0$, and measured dampers often sit at $\\beta \\approx -0.9\\gamma$
-    (on the UTFSM tests a box with $\\beta \\ge 0$ ends every fit on that bound, about 0.2
-    NRMSE points worse). A particle with $\\gamma + \\beta \\le 0$ has an unbounded z: a poor
-    score, `inf` where it overflows.
+    needs $\\gamma + \\beta > 0$, and measured dampers often sit near $\\beta \\approx -\\gamma$,
+    where a box with $\\beta \\ge 0$ would hold the fit on its bound. A particle with
+    $\\gamma + \\beta \\le 0$ has an unbounded z: a poor score, `inf` where it overflows.
     """
 
     name: ClassVar[str] = "modified_bouc_wen"
@@ -184,13 +196,20 @@ class ModifiedBoucWen(AbstractModel):
     default_upper: ClassVar[tuple[float, ...]] = (
         100000.0, 100000.0, 200000.0, 100000.0, 2500.0, 5000.0, 5000.0, 5000.0, 3.0, 1000.0,
     )
-    fixed_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
+    basis_params: ClassVar[tuple[str, ...]] = ("k1", "f0")
     dynamic: ClassVar[bool] = True
-    # RK4 while it needs at most 2 sub-steps per L-stable one: with the implicit tangent one
-    # SDIRK sub-step's Jacobian costs about 1.5 of RK4's (see `mrjax.models.resolve_model`)
+    # RK4 while it needs at most 2 sub-steps per L-stable one: the cost ratio of their
+    # Jacobian passes for this model (see `mrjax.models.resolve_model`)
     rk4_limit: ClassVar[int] = 2
     description: ClassVar[str] = "Modified Bouc-Wen (Spencer 1997): f = c1*y' + k1*x + f0"
-
+    #: the dashpots linear in the current, the hysteretic force quadratic, Spencer's constant
+    #: springs and offset (f0 = -k1 x0), the loop's shape constant
+    law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(c0=1, k0=0, c1=1, k1=0,
+        alpha=2, delta=0, beta=0, gamma=0, n=0, f0=0))
+    #: Spencer et al.'s laws of the filtered command voltage: c0, c1 and alpha linear
+    voltage_law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(alpha=1))
+    scale_symmetry: ClassVar[ScaleSymmetry] = ScaleSymmetry(
+        BW_EXPONENTS, gauge="delta", balance=("beta", "gamma"), power="n", state=(0.0, 1.0))
 
     def basis(self, x, xdot):
         x = jnp.asarray(x)
@@ -254,11 +273,6 @@ class ModifiedBoucWen(AbstractModel):
 
         return ODE(rhs=rhs, initial=initial, output=output, linearize=lin, box=box)
 
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
-        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)
-
 
 class Dahl(AbstractModel):
     """Dahl-type model: $f = c\\dot x + k x + \\alpha w + f_0$,
@@ -273,10 +287,12 @@ class Dahl(AbstractModel):
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "1/m", "N")
     default_lower: ClassVar[tuple[float, ...]] = (0.0, -100000.0, 0.0, 1.0, -1000.0)
     default_upper: ClassVar[tuple[float, ...]] = (100000.0, 100000.0, 2500.0, 10000.0, 1000.0)
-    fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
+    basis_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     dynamic: ClassVar[bool] = True
     description: ClassVar[str] = "Dahl: f = c*v + k*x + alpha*w + f0, w' = rho*(v - |v| w)"
+    law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(c=1, k=1, alpha=2, rho=0,
+        f0=1))
 
 
     def basis(self, x, xdot):
@@ -298,19 +314,8 @@ class Dahl(AbstractModel):
             (rho,) = split_theta(p, names, "rho")
             return dahl_flow(state, rho, a[1], b[1], h)
 
-        def initial(x0, v0):
-            return jnp.zeros((1,), jnp.asarray(x0).dtype)
-
-        def output(states, theta, x, xdot):
-            return states, jnp.zeros_like(jnp.asarray(xdot))
-
-        return ODE(rhs=rhs, initial=initial, output=output, flow=flow)
+        return ODE(rhs=rhs, initial=_zero_state, output=_state_regressor, flow=flow)
 
     def integration(self, theta, xdot, dt):
         # the exact update needs one step per sample whatever the stiffness
         return 1, "rk4"
-
-    def hysteresis(self, theta, x, xdot, dt):
-        theta = jnp.asarray(theta)
-        x, xdot = jnp.asarray(x), jnp.asarray(xdot)
-        return self.ode().output(self.states(theta, x, xdot, dt), theta, x, xdot)

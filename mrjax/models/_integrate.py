@@ -1,8 +1,9 @@
-r"""The one integrator of mrjax: one sampled record, one `lax.scan`, two schemes.
+r"""The one integrator of mrjax: one sampled record, one `lax.scan`, two schemes, and the rule
+of how many sub-steps a stiffness needs.
 
-Every ODE model (Bouc-Wen, modified Bouc-Wen, Dahl) only defines its right-hand side
-`rhs(state, x, xdot, theta) -> dstate/dt` (and, optionally, its Jacobian, the box its state
-never leaves, or a closed-form update); :func:`integrate` steps it over the record.
+Every ODE model only defines its state equation (:class:`ODE`: the right-hand side
+`rhs(state, x, xdot, theta) -> dstate/dt` and, optionally, its Jacobian, the box its state never
+leaves, or a closed-form update); :func:`integrate` steps it over the record.
 
 Inside each sample interval $[t_k, t_{k+1}]$ the excitation is interpolated linearly,
 $x(t_k + s\,\Delta t_k) = x_k + s (x_{k+1} - x_k)$ and likewise for $\dot x$, and the interval is
@@ -14,26 +15,22 @@ its sample.
 
 - `"rk4"`: classic explicit Runge-Kutta, 4 right-hand sides per step. Cheap and very accurate
     where the state equation is not stiff on the scale of the step, but unstable for
-    $|\lambda| h \gtrsim 2.8$: Spencer's 1997 set relaxes in ~0.05 ms and needs 15-17 steps per
-    sample at 1 kHz, and a swarm's box has far stiffer corners.
+    $|\lambda| h \gtrsim 2.8$ (a stiff damper model at 1 kHz needs tens of steps per sample,
+    and a swarm's box has far stiffer corners).
 - `"sdirk"`: Alexander's (1977) 2-stage L-stable, stiffly accurate SDIRK, $g = 1 - 1/\sqrt2$,
     order 2, with 2 Newton iterations per stage and the Jacobian re-evaluated at each iterate
     (at z = 0 the Jacobian of $|z|^n$ vanishes for n > 1, so a scheme that linearises only at
     the start of an interval misses the stiff branch z is about to enter). Every iterate is
     clipped onto a box the exact solution never leaves (Bouc-Wen:
     $|z| \le (\delta/(\beta+\gamma))^{1/n}$): this removes the Newton overshoot from z = 0 and a
-    2-cycle on the kinked right-hand side, without changing the solution. One step per sample
-    keeps the force NRMSE against LSODA (rtol 1e-10) at or below 1.2e-3 for Spencer's set at 0,
-    1 and 2.25 V and the other test sets at 1 and 5 kHz (measured: `pytest -s
-    tests/test_models.py -k lsoda` prints the table); every particle of a default box stays
-    finite.
+    2-cycle on the kinked right-hand side, without changing the solution. Its accuracy against
+    LSODA is measured by `pytest -s tests/test_models.py -k lsoda` and in the benchmarks.
 - A model with a closed-form update per interval (`flow`, Dahl) uses it instead of either.
 
-Both are differentiable (forward and reverse mode agree with central finite differences to
-< 1e-9 in float64; the cheaper `tangent="implicit"` of the L-stable scheme, which the sub-step
-policy gives a polish, differs by the last Newton correction, see :func:`integrate`) and never
-raise: parameters that make the state diverge give non-finite values, which the fitness maps
-to `inf`.
+Both are differentiable (forward and reverse mode agree with central finite differences in
+float64; the cheaper `tangent="implicit"` of the L-stable scheme, which the sub-step policy gives
+a polish, differs by the last Newton correction, see :func:`integrate`) and never raise:
+parameters that make the state diverge give non-finite values, which the fitness maps to `inf`.
 """
 
 from __future__ import annotations
@@ -44,6 +41,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 #: `rhs(state, x, xdot, theta) -> dstate/dt` for one instant.
@@ -55,20 +53,32 @@ BOX = Callable[[Array], tuple[ArrayLike, ArrayLike]]
 #: `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: closed-form update over one step.
 FLOW = Callable[[Array, Array, tuple[Array, Array], tuple[Array, Array], Array], Array]
 
+
 class ODE(NamedTuple):
     """The state equation of a dynamic model, as the integrator and its callers need it.
 
-    **Fields:** `rhs`, `linearize`, `box`, `flow` as for :func:`integrate` (the last three may
-    be None); `initial(x0, v0) -> y0` the state at the first sample from its displacement [m]
-    and velocity [m/s]; `output(states, theta, x, xdot) -> (Z, b)` the model's
-    parameter-dependent regressors `Z` (..., k) and force `b` (...) [N] from states (..., S)
-    and the parameters, displacement and velocity at the same samples (any leading shape;
-    `theta` (P,) or (..., P)).
+    **Fields:**
+
+    - `rhs(state, x, xdot, theta) -> dstate/dt` (S,) for one instant.
+    - `initial(x0, v0) -> y0` (S,): the state at the first sample from its displacement [m]
+        and velocity [m/s] (the models' `ode()` give it; :func:`integrate` takes `y0`).
+    - `output(states, theta, x, xdot) -> (Z, b)`: the model's parameter-dependent regressors
+        `Z` (..., k) and force `b` (...) [N] from states (..., S) and the parameters,
+        displacement and velocity at the same samples (any leading shape; `theta` (P,) or
+        (..., P)).
+    - `linearize(state, x, xdot, theta) -> (rhs, J)`, J = d rhs / d state (S, S), for the
+        L-stable scheme (None: forward-mode AD of `rhs`, :func:`linearize_auto`).
+    - `box(theta) -> (lower, upper)`, each broadcastable to (S,): a region the state never
+        leaves (+-inf allowed); the L-stable scheme clips its Newton iterates onto it.
+    - `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: a closed-form update over one
+        step; it replaces the scheme.
+
+    Only `rhs` is needed to integrate (`ODE(rhs)`).
     """
 
     rhs: Callable
-    initial: Callable
-    output: Callable
+    initial: Callable | None = None
+    output: Callable | None = None
     linearize: Callable | None = None
     box: Callable | None = None
     flow: Callable | None = None
@@ -213,38 +223,30 @@ def _interval(rhs, lin, proj, flow, y, p, x0, x1, v0, v1, h_all, m: int, scheme:
     return jax.lax.fori_loop(0, m, sub, y)
 
 
-def integrate_step(
-    rhs: RHS,
-    y: Float[ArrayLike, " S"],
-    theta: Float[ArrayLike, " P"],
-    x0: Float[ArrayLike, ""],
-    x1: Float[ArrayLike, ""],
-    v0: Float[ArrayLike, ""],
-    v1: Float[ArrayLike, ""],
-    dt: Float[ArrayLike, ""],
-    substeps: int,
-    *,
-    scheme: str = "rk4",
-    linearize: LIN | None = None,
-    box: BOX | None = None,
-    flow: FLOW | None = None,
-    tangent: str = "exact",
-) -> Float[Array, " S"]:
+def _as_ode(ode: ODE | RHS) -> ODE:
+    return ode if isinstance(ode, ODE) else ODE(ode)
+
+
+def integrate_step(ode: ODE | RHS, y: Float[ArrayLike, " S"], theta: Float[ArrayLike, " P"],
+                   x0: ArrayLike, x1: ArrayLike, v0: ArrayLike, v1: ArrayLike, dt: ArrayLike,
+                   substeps: int, *, scheme: str = "rk4",
+                   tangent: str = "exact") -> Float[Array, " S"]:
     """One sample interval of :func:`integrate`: the state at the next sample from the state
     `y` (S,) at this one, parameters `theta` (P,) held over the interval, the excitation going
     linearly from `(x0, v0)` to `(x1, v1)` [m, m/s] over `dt` [s]. The same steps as
     :func:`integrate` (arguments as there), for callers that choose the parameters of each
     interval as they go (the inverse model, a closed loop)."""
     _check(scheme, tangent)
-    y = jnp.asarray(y)
-    lin = linearize if linearize is not None else linearize_auto(rhs)
-    proj = _projector(box, theta, y.dtype, y.shape[0])
-    return _interval(rhs, lin, proj, flow, y, theta, x0, x1, v0, v1, dt, int(substeps), scheme,
-                     tangent)
+    ode = _as_ode(ode)
+    y, dt = jnp.asarray(y), jnp.asarray(dt)
+    lin = ode.linearize if ode.linearize is not None else linearize_auto(ode.rhs)
+    proj = _projector(ode.box, theta, y.dtype, y.shape[0])
+    return _interval(ode.rhs, lin, proj, ode.flow, y, theta, x0, x1, v0, v1, dt, int(substeps),
+                     scheme, tangent)
 
 
 def integrate(
-    rhs: RHS,
+    ode: ODE | RHS,
     y0: Float[ArrayLike, " S"],
     theta: Float[ArrayLike, "*T P"],
     x: Float[ArrayLike, " T"],
@@ -253,16 +255,14 @@ def integrate(
     substeps: int,
     *,
     scheme: str = "rk4",
-    linearize: LIN | None = None,
-    box: BOX | None = None,
-    flow: FLOW | None = None,
     tangent: str = "exact",
 ) -> Float[Array, "T S"]:
-    """Integrate `rhs` over a sampled record.
+    """Integrate a state equation over a sampled record.
 
     **Arguments:**
 
-    - `rhs`: right-hand side `rhs(state, x, xdot, theta) -> d state / dt` for one instant.
+    - `ode`: the state equation (:class:`ODE`; its `rhs`, and `linearize`, `box`, `flow` where
+        given), or its right-hand side `rhs(state, x, xdot, theta) -> d state / dt` alone.
     - `y0`: initial state at the first sample, shape `(S,)`.
     - `theta`: parameters, `(P,)` or per sample `(T, P)`.
     - `x`: displacement [m], shape `(T,)`.
@@ -271,24 +271,19 @@ def integrate(
         the last entry is unused).
     - `substeps`: steps per sample interval (static).
     - `scheme`: `"rk4"` or `"sdirk"` (static; see the module docstring).
-    - `linearize`: for `"sdirk"`, `(rhs, J)` at a point (default: `linearize_auto(rhs)`).
-    - `box`: for `"sdirk"`, `box(theta) -> (lower, upper)` the state never leaves (Newton
-        iterates are clipped onto it; +-inf allowed).
-    - `flow`: a closed-form update over one step; replaces the scheme.
     - `tangent`: how `"sdirk"` is differentiated (static; the values are the same either way):
         `"exact"`, through every Newton iterate (forward and reverse mode agree with finite
         differences of the computed states); `"implicit"`, by the implicit-function theorem
         on each stage equation at its last-but-one iterate, $(I - ghJ)^{-1}$ times the
         derivative of the stage's inputs: no second derivatives of `rhs`, so one Jacobian
-        through the scan costs about a third (MBW, 4,000 samples, 10 parameters: 28 -> 9 ms).
-        It differs from the exact one by the last Newton correction (column by column:
-        5e-5 on a UTFSM fit, 1e-4 on Spencer's set at 1 kHz, up to 5 % on stiffer sets where
-        two Newton iterations leave a visible correction): good for a Levenberg-Marquardt
-        step or a std-error (the fits reach the same RMS), not for a gradient check.
+        through the scan costs about a third. It differs from the exact one by the last Newton
+        correction (small where two Newton iterations converge, a few per cent on very stiff
+        sets): good for a Levenberg-Marquardt step or a std-error, not for a gradient check.
 
     **Returns:** the state at every sample, shape `(T, S)`, with row 0 equal to `y0`.
     """
     _check(scheme, tangent)
+    ode = _as_ode(ode)
     x = jnp.asarray(x)
     xdot = jnp.asarray(xdot)
     n = x.shape[0]
@@ -297,21 +292,21 @@ def integrate(
         return y0[None, :]
     theta = jnp.asarray(theta)
     # Constant parameters are closed over, not broadcast to (T, P) scan inputs: under vmap over
-    # C x N particles that broadcast was a (T, C, N, P) buffer, rebuilt every call.
+    # C x N particles that broadcast would be a (T, C, N, P) buffer, rebuilt every call.
     per_sample = theta.ndim > 1
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=x.dtype), (n,))[:-1]
     xs = (x[:-1], x[1:], xdot[:-1], xdot[1:], dts) + ((theta[:-1],) if per_sample else ())
     m = int(substeps)
     # one scan step per sub-step, its interval's inputs repeated: an inner loop over the
-    # sub-steps (rolled; unrolled ones made XLA's forward-mode code grow with m squared) cost
-    # its own loop overhead per interval (modified Bouc-Wen, 2 sub-steps on a 1,001-sample
-    # view: one forward-mode Jacobian 15.7 -> 10.4 ms for 2 parameter sets, under load)
+    # sub-steps has its own overhead per interval, and unrolled sub-steps make XLA's
+    # forward-mode code grow with m squared
     xs = tuple(jnp.repeat(a, m, axis=0) for a in xs) + (jnp.tile(jnp.arange(m), n - 1),)
-    lin = linearize if linearize is not None else linearize_auto(rhs)
+    rhs, flow = ode.rhs, ode.flow
+    lin = ode.linearize if ode.linearize is not None else linearize_auto(rhs)
     S = y0.shape[0]
 
     def projector(p):
-        return _projector(box, p, y0.dtype, S)
+        return _projector(ode.box, p, y0.dtype, S)
 
     stiff = scheme == "sdirk" and flow is None
     proj_const = projector(theta) if stiff and not per_sample else None
@@ -326,3 +321,39 @@ def integrate(
 
     _, ys = jax.lax.scan(step, y0, xs)
     return jnp.concatenate([y0[None, :], ys[m - 1::m]], axis=0)
+
+
+# ------------------------------------------------------------------------------ step count
+#: Target of $|\\lambda| h$ per RK4 sub-step used by :func:`choose_substeps` (dimensionless).
+#: RK4 is stable up to 2.78 for a real eigenvalue; the models' stiffness estimates are upper
+#: bounds, and 1.5 leaves room for the state equation's nonlinearity.
+STEP_TARGET = 1.5
+#: Upper limit of the automatic sub-step count.
+MAX_SUBSTEPS = 256
+#: Sub-steps used when `substeps=None` but the inputs are traced (inside `jit`/`vmap`), so no
+#: stiffness estimate can be made. `mrjax.fit` always resolves the count on the host instead.
+TRACED_SUBSTEPS = 8
+
+
+def choose_substeps(rate_hz: float, dt_s: float, *, target: float = STEP_TARGET) -> int:
+    """Number of integrator sub-steps per sample interval for a given stiffness.
+
+    **Arguments:**
+
+    - `rate_hz`: largest magnitude of the Jacobian eigenvalue of the state equation, $|\\lambda|$
+        [1/s] (see each model's `stiffness`).
+    - `dt_s`: largest sample interval [s].
+    - `target`: wanted $|\\lambda| h$ per sub-step (dimensionless).
+
+    **Returns:** an integer in `[1, MAX_SUBSTEPS]`.
+    """
+    if not (math.isfinite(rate_hz) and math.isfinite(dt_s)) or rate_hz <= 0 or dt_s <= 0:
+        return 1
+    return int(min(MAX_SUBSTEPS, max(1, math.ceil(rate_hz * dt_s / target))))
+
+
+def max_abs(a: ArrayLike) -> float:
+    """Host-side max |a| ignoring non-finite entries (0 for an empty array)."""
+    a = np.abs(np.asarray(a, dtype=float))
+    a = a[np.isfinite(a)]
+    return float(a.max()) if a.size else 0.0

@@ -42,14 +42,12 @@ References:
 - S.-B. Choi, S.-K. Lee, Y.-P. Park (2001), A hysteresis model for the field-dependent damping
     force of a magnetorheological damper, J. Sound and Vibration 245(2), 375-383.
 
-`REFERENCE_PARAMS` holds one parameter set per model, used by the known-answer tests. The
-papers' own tables could not be consulted when these models were written, so each set is the
+`REFERENCE_PARAMS` holds one parameter set per model, used by the known-answer tests: the
 least-squares fit (`mrjax.fit`, 3 significant digits) of the model to the force of a published
-damper model that mrjax carries: Kwok et al.'s generalized tanh model (2006, eq 24-29) at 1 A on
-a 2 Hz / 8 mm sine for the LuGre and polynomial models, Spencer et al.'s modified Bouc-Wen
-(1997, PAPER.md) at 1 V on their 2.5 Hz / 15 mm sine for the Herschel-Bulkley model (which has
-no hysteresis: fitted to the tanh loop its yield force goes to 0). They are the scale of a 1-2 kN
-damper in each model's own parameters, not the papers' values.
+damper model that mrjax carries: Kwok et al.'s generalized tanh model (2006, eq 24-29) at 1 A
+on a 2 Hz / 8 mm sine for the LuGre and polynomial models, Spencer et al.'s modified Bouc-Wen
+(1997, PAPER.md) at 1 V on their 2.5 Hz / 15 mm sine for the Herschel-Bulkley model. They are
+the scale of a 1-2 kN damper in each model's own parameters, not the papers' values.
 """
 
 from __future__ import annotations
@@ -59,7 +57,8 @@ from collections.abc import Callable
 import jax.numpy as jnp
 
 from ._base import safe_abs_pow
-from ._declare import Model, Parameter
+from ._declaration import Parameter
+from ._declare import Model
 
 #: Reference velocity of the Herschel-Bulkley power law [m/s].
 HB_VREF = 1.0
@@ -144,20 +143,19 @@ def polynomial() -> Model:
                  "sgn(a) = -sign(x)", reference="Choi, Lee & Park 2001")
 
 
-#: The literature models by name (built when first asked for: their checks cost a second).
+#: The literature models by name (built when first asked for: their checks take a moment).
 LITERATURE: dict[str, Callable[[], Model]] = {
     "lugre": lugre, "herschel_bulkley": herschel_bulkley, "polynomial": polynomial,
 }
 
 #: One parameter set per literature model (see the module docstring), SI units.
 REFERENCE_PARAMS: dict[str, dict[str, float]] = {
-    # fitted to Kwok et al. (2006) eq 24-29 at 1 A, 2 Hz / 8 mm (NRMSE 2.6 %)
+    # fitted to Kwok et al. (2006) eq 24-29 at 1 A, 2 Hz / 8 mm
     "lugre": dict(sigma0=1.04e7, sigma1=7840.0, sigma2=3660.0, a0=1.56e4, f0=-275.0),
-    # fitted to Spencer et al. (1997) at 1 V, 2.5 Hz / 15 mm (NRMSE 5.5 %; fitted to the tanh
-    # model, whose loop it cannot follow, its yield force goes to 0)
+    # fitted to Spencer et al. (1997) at 1 V, 2.5 Hz / 15 mm (this model has no hysteresis)
     "herschel_bulkley": dict(fy=65.2, K=1660.0, m=0.392, f0=-72.6),
-    # fitted to Kwok et al. (2006) eq 24-29 at 1 A, 2 Hz / 8 mm (NRMSE 7.7 %); the near-zero
-    # coefficients are those the loop's symmetry leaves out
+    # fitted to Kwok et al. (2006) eq 24-29 at 1 A, 2 Hz / 8 mm; the near-zero coefficients
+    # are those the loop's symmetry leaves out
     "polynomial": dict(a0=-275.0, a1=2770.0, a2=0.610, a3=-3990.0, a4=-2.01, a5=2290.0,
                        a6=1.59, b0=-282.0, b1=0.481, b2=1910.0, b3=-2.54, b4=-3650.0,
                        b5=2.51, b6=2040.0),

@@ -10,8 +10,9 @@ Models come from five places, listed by :func:`names` in this order:
 5. a file or module named where a model is asked for: `"path/to/file.py:Name"` or
     `"package.module:Name"` (the command line's `--model`).
 
-:func:`source_of` says where a model came from (fit.json records it) and :func:`from_source`
-finds it again in another process (`mrjax predict --fit DIR`).
+:func:`source_of` says where a model came from, and which of its parameters are held
+(`mrjax.models.fix`); fit.json records it and :func:`from_source` finds the model again in
+another process (`mrjax predict --fit DIR`).
 """
 
 from __future__ import annotations
@@ -31,8 +32,10 @@ from typing import Any
 from .._errors import InputError
 from ._base import AbstractModel
 from ._declare import Model
+from ._fixed import fix
 from ._hysteretic import BoucWen, Dahl, ModifiedBoucWen
 from ._literature import LITERATURE
+from ._names import ALIASES, BUILTIN_NAMES, LITERATURE_NAMES, reserved_names
 from ._static import Bingham, Kwok
 
 #: The entry-point group through which an installed package adds models.
@@ -41,23 +44,21 @@ ENTRY_POINT_GROUP = "mrjax.models"
 _BUILTIN: dict[str, type[AbstractModel]] = {
     cls.name: cls for cls in (Bingham, Kwok, BoucWen, ModifiedBoucWen, Dahl)
 }
-_ALIASES = {"tanh": "kwok", "spencer": "modified_bouc_wen", "bw": "bouc_wen",
-            "mbw": "modified_bouc_wen"}
+assert tuple(_BUILTIN) == BUILTIN_NAMES and tuple(LITERATURE) == LITERATURE_NAMES
+_ALIASES = ALIASES
 _LITERATURE_CACHE: dict[str, AbstractModel] = {}
 _USER: dict[str, AbstractModel] = {}
-#: where each non-built-in model came from, keyed by its declaration (or class)
+#: where each non-built-in model came from, and the values the object there holds fixed,
+#: keyed by its declaration (or class)
 _SOURCES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: modules imported from files, by resolved path: (sha256, module)
 _FILES: dict[str, tuple[str, Any]] = {}
 
 
-def reserved_names() -> frozenset[str]:
-    """Names only mrjax's own models may take: the built-ins, their aliases and the
-    literature models."""
-    return frozenset(_BUILTIN) | frozenset(_ALIASES) | frozenset(LITERATURE)
-
-
 def _key(model: AbstractModel):
+    """What identifies a model's definition: its declaration, or its class (held parameters
+    and integration settings aside)."""
+    model = model.unfixed
     return model.declaration if isinstance(model, Model) else type(model)
 
 
@@ -86,7 +87,8 @@ def is_spec(text: str) -> bool:
     return ":" in text or text.endswith(".py")
 
 
-def get(name: str | AbstractModel | type, *, substeps: int | None = None) -> AbstractModel:
+def get(name: str | AbstractModel | type, *, substeps: int | None = None,
+        fixed: Mapping[str, float] | None = None) -> AbstractModel:
     """The model called `name`.
 
     **Arguments:**
@@ -98,16 +100,20 @@ def get(name: str | AbstractModel | type, *, substeps: int | None = None) -> Abs
         `"package.module:Name"` (the file's only model if `:Name` is left out), a model
         instance (returned as is) or a model class.
     - `substeps`: fixed RK4 sub-steps per sample for ODE models (`None`: automatic).
+    - `fixed`: parameters to hold at values, name -> value [SI units] (`mrjax.models.fix`).
 
-    Raises :class:`mrjax.InputError` for an unknown name or a place that does not give a model.
+    Raises :class:`mrjax.InputError` for an unknown name or a place that does not give a model,
+    or a bad `fixed` (see `mrjax.models.fix`).
     """
     if isinstance(name, AbstractModel):
-        return name if substeps is None else name.with_substeps(substeps)
-    if isinstance(name, type) and issubclass(name, AbstractModel):
+        model = name
+    elif isinstance(name, type) and issubclass(name, AbstractModel):
         model = name()
     else:
         text = str(name).strip()
         model = load(text) if is_spec(text) else _by_name(text)
+    if fixed:
+        model = fix(model, fixed)
     return model if substeps is None else model.with_substeps(substeps)
 
 
@@ -150,7 +156,7 @@ def register(model: AbstractModel | type, *, source: Mapping[str, Any] | None = 
                          f"another name")
     _USER[name] = model
     if source is not None:
-        _SOURCES[_key(model)] = dict(source)
+        _SOURCES[_key(model)] = (dict(source), dict(model.fixed))
     return model
 
 
@@ -170,6 +176,7 @@ def _as_model(value: Any, where: str) -> AbstractModel:
 
 
 def _provenance_module(model: AbstractModel) -> str:
+    model = model.unfixed
     if isinstance(model, Model):
         return getattr(model.declaration.force_fn, "__module__", "") or ""
     return type(model).__module__
@@ -283,53 +290,74 @@ def source_of(model: AbstractModel) -> dict[str, Any]:
     own models; `{"kind": "file", "file", "object", "sha256"}`; `{"kind": "module", "module",
     "object", "file", "sha256"}`; `{"kind": "entry_point", "name", "value", "distribution",
     "version"}`; or `{"kind": "session", "module"}` for a model defined where no other process
-    can import it (a script run as `__main__`, a notebook)."""
-    if type(model) in _BUILTIN.values() or model.name in LITERATURE and \
+    can import it (a script run as `__main__`, a notebook). With `"fixed": {name: value}` where
+    the model, or the object found there, holds parameters (`mrjax.models.fix`):
+    :func:`from_source` then rebuilds exactly this model."""
+    where, held_there = _where_from(model)
+    if model.fixed or held_there:
+        where["fixed"] = dict(model.fixed)
+    return where
+
+
+def _where_from(model: AbstractModel) -> tuple[dict[str, Any], dict[str, float]]:
+    """Where `model`'s definition came from, and the parameters the model object found there
+    holds fixed."""
+    key = _key(model)
+    if key in _BUILTIN.values() or model.name in LITERATURE and \
             _provenance_module(model).startswith("mrjax."):
-        return {"kind": "builtin"}
-    known = _SOURCES.get(_key(model))
+        return {"kind": "builtin"}, {}
+    known = _SOURCES.get(key)
     if known is not None:
-        return dict(known)
+        return dict(known[0]), dict(known[1])
     mod_name = _provenance_module(model)
     module = sys.modules.get(mod_name)
     if module is None or mod_name == "__main__" or mod_name.startswith("mrjax_user_") or \
             not getattr(module, "__file__", None):
-        return {"kind": "session", "module": mod_name}
-    if isinstance(model, Model):
-        found = [k for k, v in vars(module).items()
-                 if isinstance(v, Model) and v.declaration is model.declaration]
-    else:
-        found = [k for k, v in vars(module).items() if v is type(model)]
-    obj = found[0] if found else None
-    if obj is None:
-        return {"kind": "session", "module": mod_name}
-    return {"kind": "module", "module": mod_name, "object": obj, **_file_of(module)}
+        return {"kind": "session", "module": mod_name}, {}
+    found = [(k, v) for k, v in vars(module).items() if (
+        isinstance(v, AbstractModel) and _key(v) is key) or v is key]
+    if not found:
+        return {"kind": "session", "module": mod_name}, {}
+    obj, value = found[0]
+    held = dict(value.fixed) if isinstance(value, AbstractModel) else {}
+    return {"kind": "module", "module": mod_name, "object": obj, **_file_of(module)}, held
 
 
 def describe_source(source: Mapping[str, Any]) -> str:
     """One line saying where a model came from (see :func:`source_of`)."""
     kind = source.get("kind")
+    held = source.get("fixed") or {}
+    tail = ("; " + ", ".join(f"{n} = {v:g}" for n, v in held.items()) + " fixed") if held \
+        else ""
     if kind == "builtin":
-        return "built-in"
+        return "built-in" + tail
     if kind == "file":
-        return f"file {source.get('file')}:{source.get('object')}"
+        return f"file {source.get('file')}:{source.get('object')}" + tail
     if kind == "module":
-        return f"module {source.get('module')}:{source.get('object')}"
+        return f"module {source.get('module')}:{source.get('object')}" + tail
     if kind == "entry_point":
         dist = source.get("distribution")
         return (f"entry point {source.get('value')}"
-                + (f" ({dist} {source.get('version') or ''})".rstrip() if dist else ""))
-    return f"this session ({source.get('module')})"
+                + (f" ({dist} {source.get('version') or ''})".rstrip() if dist else "") + tail)
+    return f"this session ({source.get('module')})" + tail
 
 
-def from_source(name: str, source: Mapping[str, Any] | None = None) -> AbstractModel:
+def from_source(name: str, source: Mapping[str, Any] | None = None, *,
+                fixed: Mapping[str, float] | None = None) -> AbstractModel:
     """The model called `name` that fit.json says came from `source` (see :func:`source_of`),
     found again in this process: a built-in, a registered or installed model, or the module or
-    file recorded (a file whose content changed since gives a warning).
+    file recorded (a file whose content changed since gives a warning); with the parameters
+    held that `fixed` (default: the source's `"fixed"`) names, exactly those.
 
     Raises :class:`mrjax.InputError` in one line saying what to pass when it cannot.
     """
     source = dict(source or {})
+    held = fixed if fixed is not None else source.get("fixed")
+    model = _found_again(name, source)
+    return model if held is None else fix(model.unfixed, held)
+
+
+def _found_again(name: str, source: dict[str, Any]) -> AbstractModel:
     key = str(name).strip().lower()
     kind = source.get("kind")
     if key in reserved_names() or key in _USER or key in _entry_points():
@@ -347,7 +375,7 @@ def from_source(name: str, source: Mapping[str, Any] | None = None) -> AbstractM
         if source.get("sha256") and sha != source["sha256"]:
             warnings.warn(f"model {name!r}: {path} changed since the fit (SHA-256 "
                           f"{str(source['sha256'])[:12]}... then, {sha[:12]}... now)",
-                          stacklevel=2)
+                          stacklevel=3)
     elif kind == "module":
         try:
             model = load(f"{source.get('module')}:{source.get('object')}")

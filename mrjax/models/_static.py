@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import ClassVar
 
 import jax.numpy as jnp
@@ -21,8 +23,10 @@ class Bingham(AbstractModel):
     units: ClassVar[tuple[str, ...]] = ("N", "N*s/m", "N")
     default_lower: ClassVar[tuple[float, ...]] = (0.0, 0.0, -1000.0)
     default_upper: ClassVar[tuple[float, ...]] = (2500.0, 100000.0, 1000.0)
-    fixed_params: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
+    basis_params: ClassVar[tuple[str, ...]] = ("fc", "c0", "f0")
     description: ClassVar[str] = "Bingham: f = fc*sign(v) + c0*v + f0"
+    #: the yield force saturates with the field (quadratic), the viscous terms linear
+    law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(fc=2, c0=1, f0=1))
 
     def basis(self, x, xdot):
         xdot = jnp.asarray(xdot)
@@ -45,10 +49,13 @@ class Kwok(AbstractModel):
     units: ClassVar[tuple[str, ...]] = ("N*s/m", "N/m", "N", "s/m", "-", "N")
     default_lower: ClassVar[tuple[float, ...]] = (0.0, -100000.0, 0.0, 1.0, 0.0, -1000.0)
     default_upper: ClassVar[tuple[float, ...]] = (100000.0, 100000.0, 2500.0, 10000.0, 5.0, 1000.0)
-    fixed_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
+    basis_params: ClassVar[tuple[str, ...]] = ("c", "k", "f0")
     varying_params: ClassVar[tuple[str, ...]] = ("alpha",)
     log_params: ClassVar[tuple[str, ...]] = ("beta",)
     description: ClassVar[str] = "Kwok tanh: f = c*v + k*x + alpha*tanh(beta*v + delta*sign(x)) + f0"
+    #: Kwok et al.'s laws over the current (eq 24-29)
+    law_degrees: ClassVar[Mapping[str, int]] = MappingProxyType(dict(c=1, k=1, alpha=2, beta=0,
+        delta=1, f0=1))
 
 
     def basis(self, x, xdot):

@@ -1,18 +1,20 @@
 """The one sub-step policy of mrjax: how an ODE model integrates a record.
 
-Every ODE model integrates its state with the one integrator of `_integrate`, splitting each
-sample interval into `substeps` equal steps of a scheme (`"rk4"` or the L-stable `"sdirk"`).
-Both are static (compile-time) properties of a model object (`AbstractModel.substeps`,
-`AbstractModel.scheme`); this module decides them on the host:
+Every ODE model integrates its state with the one integrator (`mrjax.models.integrate`),
+splitting each sample interval into `substeps` equal steps of a scheme (`"rk4"` or the L-stable
+`"sdirk"`). Both are static (compile-time) properties of a model object
+(`AbstractModel.substeps`, `AbstractModel.scheme`); this module decides them on the host:
 
-- :func:`choose_substeps` maps a stiffness estimate $|\\lambda|$ [1/s] and the largest sample
-    interval to a count (target $|\\lambda| h \\le$ `STEP_TARGET`, at most `MAX_SUBSTEPS`);
 - :func:`resolve_model` fixes the scheme and count of a model for parameter rows on data: a
     swarm takes one L-stable step per sample; a polish takes RK4 where the stiffest row, the
-    largest scored |velocity| and the longest scored interval ask for few sub-steps, else the
-    L-stable scheme with the count found by step doubling;
-- `TRACED_SUBSTEPS` is used when a model with `substeps=None` is called on traced inputs (no
-    estimate can be made inside `jit`).
+    largest scored |velocity| and the longest scored interval ask for few sub-steps
+    (its stiffness estimate), else the L-stable scheme with the count found by step
+    doubling (:func:`doubled_substeps`);
+- :func:`box_points` gives parameter rows inside a search box where no parameters are known
+    yet (a stiffness estimate at the box's corners is both the most pessimistic and, for
+    signed parameters, often not finite);
+- `mrjax.models.TRACED_SUBSTEPS` is used when a model with `substeps=None` is called on traced
+    inputs (no estimate can be made inside `jit`).
 
 Every caller (the swarm, the polish, the uncertainty, the generalized models, the reported RMS)
 goes through :func:`resolve_model`.
@@ -20,57 +22,22 @@ goes through :func:`resolve_model`.
 
 from __future__ import annotations
 
-import math
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax
 import numpy as np
 from jaxtyping import ArrayLike
 
-if TYPE_CHECKING:
-    from ._base import AbstractModel
+from ._base import AbstractModel
+from ._integrate import max_abs
 
-#: Target of $|\\lambda| h$ per RK4 sub-step used by :func:`choose_substeps` (dimensionless).
-#: RK4 is stable up to 2.78 for a real eigenvalue; with the conservative stiffness estimates of the
-#: models, 1.5 keeps the force NRMSE below 1e-4 on Spencer's 1997 set at 1 and 5 kHz.
-STEP_TARGET = 1.5
-#: Upper limit of the automatic sub-step count.
-MAX_SUBSTEPS = 256
-#: Sub-steps used when `substeps=None` but the inputs are traced (inside `jit`/`vmap`), so no
-#: stiffness estimate can be made. `mrjax.fit` always resolves the count on the host instead.
-TRACED_SUBSTEPS = 8
 #: How the L-stable scheme of a resolved model is differentiated: by the implicit-function
-#: theorem on its stage equations (`mrjax.models.integrate`, `tangent`), about 3 x cheaper
-#: than through the Newton iterates and as good for a Levenberg-Marquardt step or a std-error.
+#: theorem on its stage equations (`mrjax.models.integrate`, `tangent`), cheaper than through
+#: the Newton iterates and as good for a Levenberg-Marquardt step or a std-error.
 IMPLICIT = "implicit"
 
-def choose_substeps(rate_hz: float, dt_s: float, *, target: float = STEP_TARGET) -> int:
-    """Number of integrator sub-steps per sample interval for a given stiffness.
 
-    **Arguments:**
-
-    - `rate_hz`: largest magnitude of the Jacobian eigenvalue of the state equation, $|\\lambda|$
-        [1/s] (see each model's `stiffness`).
-    - `dt_s`: largest sample interval [s].
-    - `target`: wanted $|\\lambda| h$ per sub-step (dimensionless).
-
-    **Returns:** an integer in `[1, MAX_SUBSTEPS]`.
-    """
-    if not (math.isfinite(rate_hz) and math.isfinite(dt_s)) or rate_hz <= 0 or dt_s <= 0:
-        return 1
-    return int(min(MAX_SUBSTEPS, max(1, math.ceil(rate_hz * dt_s / target))))
-
-
-def max_abs(a: ArrayLike) -> float:
-    """Host-side max |a| ignoring non-finite entries (0 for an empty array)."""
-    a = np.abs(np.asarray(a, dtype=float))
-    a = a[np.isfinite(a)]
-    return float(a.max()) if a.size else 0.0
-
-
-def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
-                  mask: ArrayLike | None = None, *, swarm: bool = False):
+def resolve_model(model: AbstractModel, rows: ArrayLike, xdot, dt,
+                  mask: ArrayLike | None = None, *, swarm: bool = False) -> AbstractModel:
     """The model with its integration (scheme and sub-step count) fixed on the host.
 
     The policy:
@@ -80,15 +47,12 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
         stiffness estimate (RK4 would need hundreds of sub-steps, or diverge).
     - **a polish or a reported RMS**: RK4 with the count of `choose_substeps` for the stiffest
         row (`rows`: the parameters being refined or scored) while it is at most the model's
-        `rk4_limit` (RK4 and its Jacobian are cheapest there: the UTFSM fits need 1-6);
-        above, the L-stable scheme with the count m found by step doubling
-        (:func:`doubled_substeps`: force NRMSE between m and 2m steps below
-        `DOUBLING_TOL / 2.5`) and the implicit tangent (`IMPLICIT`), unless RK4's count is
-        still at most `rk4_limit` x m (RK4 is the more accurate; one MBW Jacobian on 4,000
-        samples: RK4 at 1 / 2 / 4 / 8 sub-steps 5.8 / 13 / 23 / 44 ms, the L-stable scheme at
-        1 / 2 sub-steps 8.9 / 19 ms with the implicit tangent, 28 / 59 ms through its Newton
-        iterates: MBW's `rk4_limit` is 2; the 30 UTFSM tests' polish stage took 19.5 s with
-        8, 17.2 s with 2).
+        `rk4_limit` (RK4 and its Jacobian are cheapest there); above, the L-stable scheme with
+        the count m found by step doubling (:func:`doubled_substeps`: force NRMSE between m and
+        2m steps below `DOUBLING_TOL / 2.5`) and the implicit tangent (`IMPLICIT`), unless
+        RK4's count is still at most `rk4_limit` x m (RK4 is then the more accurate and its
+        Jacobian pass still the cheaper; each model's `rk4_limit` is that cost ratio, measured
+        in the benchmarks).
 
     A closed-form model (Dahl) takes one exact step per sample in every case.
 
@@ -96,9 +60,10 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
 
     - `model`: an `AbstractModel`. Static models, and models whose `substeps` is already set,
         are returned unchanged.
-    - `rows`: parameter rows (N, P) or one vector (P,), SI units (the box corners of a swarm,
-        the found parameters of a polish). For the step doubling, rows that match the data
-        rows (N = C of a (C, T) `xdot`) are each integrated on their own record.
+    - `rows`: parameter rows (N, P) or one vector (P,), SI units: the parameters being refined
+        or scored (a polish's start, the swarm's best, a fit's result); with only a search box,
+        :func:`box_points`. For the step doubling, rows that match the data rows (N = C of a
+        (C, T) `xdot`) are each integrated on their own record.
     - `xdot` [m/s], `dt` [s]: velocity and sample intervals of the data, (T,) or (C, T); or
         a tuple of such arrays, groups of records of different lengths (each group's records
         are integrated side by side for the step doubling, and the largest count is taken).
@@ -107,7 +72,7 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
     - `swarm`: the swarm's policy (above).
 
     **Returns:** `model.with_substeps(m, scheme)`, with the L-stable scheme's `tangent`
-    `IMPLICIT` (its values are the same; its Jacobian costs about a third).
+    `IMPLICIT` (its values are the same; its Jacobian is cheaper).
     """
     if not model.dynamic or model.substeps is not None:
         return model
@@ -138,8 +103,7 @@ def resolve_model(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
 @eqx.filter_jit
 def _forces(model, rows, x, v, h):
     """Forces of every record (C, T) with its parameter row (C, P), compiled once per model
-    integration and shape (eagerly, the step doubling on the 30 UTFSM tests took 2.5 s warm
-    instead of 0.3 s)."""
+    integration and shape (the step doubling runs it two or three times per model)."""
     return jax.vmap(model.force)(rows, x, v, h)
 
 
@@ -152,14 +116,14 @@ def doubled_substeps(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
                      mask: ArrayLike | None = None, *, m_max: int = 64) -> int:
     """Sub-steps of the L-stable scheme by step doubling: starting from 1, the count is doubled
     until the force NRMSE (RMS difference / max|F|) between m and 2m steps is at most
-    `DOUBLING_TOL / 2.5` on the data (measured over 135 cases, the estimate is 0.4-2.1 times
-    the true error against LSODA, so the true NRMSE stays below `DOUBLING_TOL`). Costs two or
-    three forward integrations (no Jacobian).
+    `DOUBLING_TOL / 2.5` on the data (the difference estimates the error of m steps within a
+    factor the 2.5 covers, so the true NRMSE stays below `DOUBLING_TOL`; checked against
+    LSODA in the tests). Costs two or three forward integrations (no Jacobian).
 
     **Arguments:** `model`; `rows` (C, P) matching the records of `xdot` (C, T), or any rows
     (the first is used on every record); `xdot` [m/s], `dt` [s] (T,) or (C, T); `mask` the
     real samples (default all): only they are compared (a padded record's jump to zero
-    velocity after its end asked for 8 sub-steps where the record needs 1-2); `m_max`.
+    velocity after its end would ask for more sub-steps than the record needs); `m_max`.
     """
     rows = np.atleast_2d(np.asarray(rows, float))
     v = np.atleast_2d(np.asarray(xdot, float))
@@ -180,7 +144,8 @@ def doubled_substeps(model, rows: ArrayLike, xdot: ArrayLike, dt: ArrayLike,
         F2 = force(2 * m)
         ok = np.isfinite(F) & np.isfinite(F2) & real
         scale = np.max(np.abs(F2[ok])) if ok.any() else 0.0
-        est = float(np.sqrt(np.mean((F[ok] - F2[ok]) ** 2)) / scale) if scale > 0 else 0.0
+        with np.errstate(over="ignore", invalid="ignore"):  # a row near overflow: est = inf
+            est = float(np.sqrt(np.mean((F[ok] - F2[ok]) ** 2)) / scale) if scale > 0 else 0.0
         if est <= DOUBLING_TOL / 2.5:
             break
         m, F = 2 * m, F2
@@ -192,8 +157,62 @@ def exact_tangent(model: AbstractModel) -> AbstractModel | None:
     where :func:`resolve_model` gave it the L-stable scheme's implicit tangent (`IMPLICIT`, an
     approximation of the derivatives: see `mrjax.models.integrate`); `None` where its
     derivatives are already exact (RK4, a closed-form or static model). The values are the
-    same; the exact Jacobian costs about 3 x more. `mrjax.posterior` uses it where the implicit
+    same; the exact Jacobian costs more. `mrjax.posterior` uses it where the implicit
     tangent's gradient is off (`mrjax.bayes.sample`, `exact`)."""
     if getattr(model, "scheme", None) == "sdirk" and getattr(model, "tangent", None) == IMPLICIT:
         return model.with_substeps(model.substeps, "sdirk", "exact")
     return None
+
+
+#: Points of :func:`box_points` inside the box, besides its centre.
+BOX_POINTS = 15
+
+
+def box_points(model: AbstractModel, lower: ArrayLike, upper: ArrayLike, *,
+               n: int = BOX_POINTS) -> np.ndarray:
+    """Parameter rows inside a search box, for a stiffness estimate where no parameters are
+    known yet (:func:`resolve_model`'s `rows`): the box's centre and `n` points of a Halton
+    sequence over its nonlinear parameters (the linear ones at their centre: they never enter
+    the state equation), each taken in the middle half of the box along every axis (log-spaced
+    for `log_params` with a positive box). Deterministic.
+
+    The corners of a box with signed parameters hold parameter sets whose state diverges (a
+    Bouc-Wen-type loop with beta + gamma < 0); an estimate there is not finite, and one at the
+    stiffest corner asks for far more sub-steps than any fit needs.
+
+    **Arguments:** `model`; `lower`, `upper` (P,) the box [SI units]; `n` points besides the
+    centre.
+
+    **Returns:** rows (n + 1, P), the centre first.
+    """
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    nl = model.nonlinear_index
+    u = 0.25 + 0.5 * _halton(n, max(nl.size, 1))  # the middle half of every axis
+    rows = np.repeat((0.5 * (lo + hi))[None], n + 1, axis=0)
+    for j, i in enumerate(nl):
+        if model.param_names[i] in model.log_params and lo[i] > 0:
+            rows[0, i] = np.sqrt(lo[i] * hi[i])
+            rows[1:, i] = np.exp(np.log(lo[i]) + u[:, j] * (np.log(hi[i]) - np.log(lo[i])))
+        else:
+            rows[1:, i] = lo[i] + u[:, j] * (hi[i] - lo[i])
+    return rows
+
+
+def _halton(n: int, d: int) -> np.ndarray:
+    """The first `n` points (n, d) of the Halton sequence in [0, 1)^d (prime bases 2, 3, 5...,
+    point 0 skipped)."""
+    primes, k = [], 2
+    while len(primes) < d:
+        if all(k % p for p in primes):
+            primes.append(k)
+        k += 1
+    out = np.zeros((n, d))
+    for j, b in enumerate(primes):
+        for i in range(n):
+            f, r, q = 1.0, 0.0, i + 1
+            while q:
+                f /= b
+                r += f * (q % b)
+                q //= b
+            out[i, j] = r
+    return out
