@@ -36,6 +36,12 @@ class WarningKind(enum.StrEnum):
     BEYOND_BOUNDS = "beyond_bounds"
     #: A posterior that starts from a doubtful place (no polish, parameters at bounds).
     DOUBTFUL_START = "doubtful_start"
+    #: A record's data look doubtful (a check of the loader; also in its `warnings`).
+    RECORD_CHECK = "record_check"
+    #: A record's metadata given twice and one of them ignored.
+    IGNORED_METADATA = "ignored_metadata"
+    #: A data spec's `files` entry (its `parameters[0]`) matches none of the files loaded.
+    SPEC_UNMATCHED = "spec_unmatched"
 
 
 class ResultWarning(RuntimeWarning):

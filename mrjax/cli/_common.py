@@ -10,10 +10,12 @@ import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .._errors import InputError
+from .._warnings import ResultWarning, WarningKind
 from ..data import Batch, Condition, DataSpec, Source, describe, find_files, load, make_batch
 from ..fitting import RUNTIME_BYTES, default_budget
 from ..models import AbstractModel, check_bounds
@@ -137,8 +139,6 @@ def load_batches(sets: Sequence[Sequence[str | os.PathLike]],
     """Several sets of files read with one spec (`mrjax compare FILES --validate FILES`), one
     batch per set. A spec's `[files]` entry (or `FILE=VALUE` flag) need match only one of the
     sets: the loader's warning that it matches no file is kept only when it matches none."""
-    # `mrjax.data.load` warns "<spec>: files entry '<pattern>' matches none of the N file(s)
-    # loaded"; the part before " matches none of the " names the entry.
     batches, unmatched = [], []
     for paths in sets:
         with warnings.catch_warnings(record=True) as caught:
@@ -146,18 +146,21 @@ def load_batches(sets: Sequence[Sequence[str | os.PathLike]],
             batches.append(load_batch(paths, spec))
         keys = set()
         for w in caught:
-            head, sep, _ = str(w.message).partition(" matches none of the ")
-            if sep:
-                keys.add(head)
+            if _unmatched(w.message):
+                keys.add(w.message.parameters[0])
             else:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         unmatched.append((keys, caught))
     common = set.intersection(*(k for k, _ in unmatched)) if unmatched else set()
     for w in unmatched[0][1]:
-        head, sep, _ = str(w.message).partition(" matches none of the ")
-        if sep and head in common:
+        if _unmatched(w.message) and w.message.parameters[0] in common:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     return batches
+
+
+def _unmatched(message: Any) -> bool:
+    """Whether a warning says a spec's `files` entry matched no file."""
+    return isinstance(message, ResultWarning) and message.kind == WarningKind.SPEC_UNMATCHED
 
 
 def say_estimates(batch: Batch | np.ndarray) -> None:

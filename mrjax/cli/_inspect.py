@@ -8,6 +8,7 @@ import warnings
 from .. import __version__
 from .._errors import InputError
 from .._io import OutputDir, json_bytes
+from .._warnings import ResultWarning, WarningKind
 from ..data import ConditionReport, describe, find_files
 from ._common import data_spec, load_conditions, use_agg
 from ._parse import say
@@ -54,10 +55,10 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         warnings.simplefilter("always")
         conditions = load_conditions(files, spec)
     reports = describe(conditions)
-    # the loader's warnings about a condition are in its line; show only the others
-    in_lines = [w for r in reports for w in r.warnings]
+    # the loader's checks of a record are in its line; show only the other warnings
     for w in caught:
-        if not any(s in str(w.message) for s in in_lines):
+        m = w.message
+        if not (isinstance(m, ResultWarning) and m.kind == WarningKind.RECORD_CHECK):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     notes = _notes(reports)
     toml = None

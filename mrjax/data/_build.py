@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from .._errors import InputError
+from .._warnings import ResultWarning, WarningKind
 from ._checks import check_record
 from ._columns import ROLES, SIGNAL_ROLES, Column, Meta
 from ._condition import Condition
@@ -279,7 +280,7 @@ def _one(read: ReadColumns, cols: Mapping[str, Column], idx: Rows, key: str | No
             fs = 1.0 / float(np.median(np.diff(t)))
             if abs(fs / meta.sample_rate - 1.0) > 0.01:
                 _warn(source, f"sample rate {meta.sample_rate:g} Hz ignored: the time column "
-                              f"gives {fs:.6g} Hz")
+                              f"gives {fs:.6g} Hz", WarningKind.IGNORED_METADATA)
     elif meta.sample_rate is not None:
         t = np.arange(len(sig["displacement"])) / meta.sample_rate
         notes.append(f"no time column: time from the sample rate {meta.sample_rate:g} Hz")
@@ -337,10 +338,10 @@ def _one(read: ReadColumns, cols: Mapping[str, Column], idx: Rows, key: str | No
     cond_warnings = check_record(cond.t, cond.x, xdot if xdot is None else cond.xdot,
                                  frequency) + cond_warnings
     for w in cond_warnings:
-        _warn(source, w)
+        _warn(source, w, WarningKind.RECORD_CHECK)
     return dataclasses.replace(cond, **changes, estimated=frozenset(estimated),
                                notes=tuple(notes), warnings=tuple(cond_warnings))
 
 
-def _warn(source: str, message: str) -> None:
-    warnings.warn(f"{source}: {message}", RuntimeWarning, stacklevel=5)
+def _warn(source: str, message: str, kind: WarningKind) -> None:
+    warnings.warn(ResultWarning(kind, f"{source}: {message}", conditions=(source,)), stacklevel=5)

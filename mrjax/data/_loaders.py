@@ -29,6 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from .._errors import InputError
+from .._warnings import ResultWarning, WarningKind
 from ._build import ReadColumns, assemble
 from ._columnar import (
     FEATHER_SUFFIXES,
@@ -129,9 +130,10 @@ def warn_unmatched(spec: DataSpec | None, files: Sequence[Path]) -> None:
     """Warn about each `files` pattern of `spec` that matches none of `files`."""
     for pattern in spec.files if spec is not None else ():
         if not any(spec_matches(pattern, f) for f in files):
-            warnings.warn(f"{spec.origin or 'data spec'}: files entry {pattern!r} matches "
-                          f"none of the {len(files)} file(s) loaded", RuntimeWarning,
-                          stacklevel=4)
+            warnings.warn(ResultWarning(
+                WarningKind.SPEC_UNMATCHED, f"{spec.origin or 'data spec'}: files entry "
+                f"{pattern!r} matches none of the {len(files)} file(s) loaded",
+                parameters=(pattern,)), stacklevel=4)
 
 
 @dataclasses.dataclass(frozen=True)
