@@ -226,6 +226,9 @@ def test_readme_is_a_landing_page():
     first_screen = "\n".join(lines[:30])
     assert 'pip install -e ".[dev]" && mrjax reproduce' in first_screen
     assert 'pip install -e ".[dev]" && pytest' in first_screen
+    text = "\n".join(lines)
+    links = re.findall(r"\]\((docs/[^)#]+)", text) + re.findall(r"\]\(([\w./-]+\.png)\)", text)
+    assert links and all((REPO / link).is_file() for link in links), links
 
 
 # --- the generated pages ------------------------------------------------------------------------
