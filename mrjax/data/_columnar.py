@@ -46,13 +46,35 @@ class ColumnarFile:
 
     def __init__(self, path: PathLike, *, columns: Mapping[str, Column] | None,
                  wide: Mapping[str, tuple[Column, ...]] | None = None, strict: bool):
-        import pyarrow as pa
-
         p = check_file(path)
         self.src, self.stem, self.strict = str(path), stem(path), strict
         self.kind = _kind(p)
         self.size = p.stat().st_size
         self._file: Any = None
+        schema, rows = self._open(p)
+        #: first row of each piece, and the number of rows
+        self.starts = np.concatenate([[0], np.cumsum(rows)]).astype(np.int64)
+        self.n_rows = int(self.starts[-1])
+        names = [n for n in schema.names if not _INDEX.fullmatch(str(n))]
+        self.header = [str(n) for n in names]
+        if len(set(self.header)) != len(self.header):
+            dup = next(h for h in self.header if self.header.count(h) > 1)
+            raise InputError(f"{self.src}: column {dup!r} appears twice")
+        if self.n_rows == 0:
+            raise InputError(f"{self.src}: no data rows")
+        self.wide = dict(wide or {})
+        if columns is None:
+            columns = conventional_columns(self.header, self.src, strict)
+        self.columns = dict(columns)
+        asked = list(self.columns.items()) + [(r, c) for r, cs in self.wide.items() for c in cs]
+        self.index = {c: column_index(self.header, c, role, self.src) for role, c in asked}
+        self.used = sorted(set(self.index.values()))
+        self._names = [names[j] for j in self.used]
+
+    def _open(self, p: Path) -> tuple[Any, list[int]]:
+        """Open the file: `self._file` set; returns its schema and the rows of each piece."""
+        import pyarrow as pa
+
         try:
             if self.kind == "Parquet":
                 import pyarrow.parquet as pq
@@ -75,24 +97,15 @@ class ColumnarFile:
         except (pa.ArrowException, OSError, ValueError) as e:
             raise InputError(f"{self.src}: not a readable {self.kind} file "
                              f"({one_line(e)})") from None
-        #: first row of each piece, and the number of rows
-        self.starts = np.concatenate([[0], np.cumsum(rows)]).astype(np.int64)
-        self.n_rows = int(self.starts[-1])
-        names = [n for n in schema.names if not _INDEX.fullmatch(str(n))]
-        self.header = [str(n) for n in names]
-        if len(set(self.header)) != len(self.header):
-            dup = next(h for h in self.header if self.header.count(h) > 1)
-            raise InputError(f"{self.src}: column {dup!r} appears twice")
-        if self.n_rows == 0:
-            raise InputError(f"{self.src}: no data rows")
-        self.wide = dict(wide or {})
-        if columns is None:
-            columns = conventional_columns(self.header, self.src, strict)
-        self.columns = dict(columns)
-        asked = list(self.columns.items()) + [(r, c) for r, cs in self.wide.items() for c in cs]
-        self.index = {c: column_index(self.header, c, role, self.src) for role, c in asked}
-        self.used = sorted(set(self.index.values()))
-        self._names = [names[j] for j in self.used]
+        return schema, rows
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the open file (e.g. for a worker of a Dask cluster)."""
+        return {**self.__dict__, "_file": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickled: the file is opened again when a piece is first read."""
+        self.__dict__.update(state)
 
     @property
     def n_pieces(self) -> int:
@@ -103,6 +116,8 @@ class ColumnarFile:
         `condition` column), checked."""
         import pyarrow as pa
 
+        if self._file is None:  # unpickled
+            self._open(Path(self.src).expanduser())
         try:
             if self.kind == "Parquet":
                 batch = self._file.read_row_group(i, columns=self._names)
