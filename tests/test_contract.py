@@ -137,7 +137,8 @@ def test_fixed_parameter_known_answer():
                       noise=0.01 * float(np.max(np.abs(c.force))), seed=k)
              for k, ((f, a), c) in enumerate(zip(motions, clean))]
     r = mrjax.fit(m, make_batch(conds), bounds=({"alpha": 0.0}, {"alpha": 1e6}),
-                  swarm=mrjax.Swarm(n_particles=30, max_generations=40, view=False))
+                  swarm=mrjax.Swarm(n_particles=20, max_generations=30, view=False),
+                  polish=mrjax.Polish(retry=False))
     assert r.model.fixed == {"delta": 1.0}
     for i in range(2):
         est, se = np.asarray(r.theta[i]), np.asarray(r.stderr[i])

@@ -96,7 +96,14 @@ class ScaleSymmetry:
         balance sum, or a non-positive exponent difference)."""
         return self._scale(np.asarray(theta, float), names, scalar=np.ndim(theta) == 1)
 
-    def _scale(self, theta: np.ndarray, names: tuple[str, ...], scalar: bool):
+    def has_canonical(self, theta: ArrayLike, names: tuple[str, ...]) -> np.ndarray:
+        """Whether the family of `theta` (..., P) has a canonical member (a positive gauge and
+        balance sum, a positive exponent difference): where not, :meth:`canonical_scale` is 1."""
+        theta = np.asarray(theta, float)
+        return self._scale(theta, names, scalar=False, valid=True)
+
+    def _scale(self, theta: np.ndarray, names: tuple[str, ...], scalar: bool,
+               valid: bool = False):
         """:meth:`canonical_scale`, in scalar arithmetic (one row) or elementwise."""
         g = self._column(theta, names, self.gauge)
         bal = sum(self._column(theta, names, n) for n in self.balance)
@@ -106,6 +113,8 @@ class ScaleSymmetry:
             e = (ag - ab) + (bg - bb) * nu  # s**e = bal / g at the canonical member
             ratio = g / bal
             ok = np.isfinite(ratio) & (ratio > 0) & (bal > 0) & (e > 0)
+            if valid:
+                return ok
             if scalar:
                 return ratio ** (-1.0 / e) if ok else np.float64(1.0)
             return np.where(ok, np.where(ok, ratio, 1.0) ** (-1.0 / np.where(ok, e, 1.0)), 1.0)
