@@ -39,8 +39,9 @@ ENGINE_SETTINGS: dict[str, dict] = {
     "restarts": dict(swarm=mrjax.Swarm(restarts=2)),
     "float32": dict(swarm=mrjax.Swarm(dtype="float32")),
 }
-#: `mrjax.fit`'s methods: swarm then polish, swarm alone, polish alone from a neutral start.
-METHODS: tuple[str, ...] = ("pso+lm", "pso", "lm")
+#: `mrjax.fit`'s methods (`FitResult.method`) and the settings that give each: swarm then
+#: polish, swarm alone, polish alone from a neutral start.
+METHODS: dict[str, dict] = {"pso+lm": {}, "pso": dict(polish=None), "lm": dict(swarm=None)}
 #: The engine's problem kinds and the public function that builds each.
 PROBLEM_KINDS: dict[str, str] = {"TestsProblem": "mrjax.fit",
                                  "LawsProblem": "mrjax.generalize.generalize(method='joint'), "

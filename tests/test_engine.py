@@ -32,7 +32,7 @@ def test_every_model_and_setting_reaches_the_noise_floor(name, setting):
     1 % noise, the fit's RMS is at most the true parameters' (the noise floor) up to 0.5 %,
     the polish never raises the swarm's RMS, and the reported swarm is the one set."""
     batch, truth = short_batch(name)
-    res = mrjax.fit(name, batch, seed=0, **ENGINE_SETTINGS[setting])
+    res = mrjax.fit(name, batch, key=0, **ENGINE_SETTINGS[setting])
     truth_rms = rms_per_condition(models.get(name), truth, batch)
     ratio = res.rms / truth_rms
     print(f"\n{name} / {setting}: RMS / truth {np.round(ratio, 5)}")
@@ -49,7 +49,8 @@ def test_methods(name, method):
     both, the noise floor."""
     batch, truth = short_batch(name)
     model = models.get(name)
-    res = mrjax.fit(name, batch, seed=0, method=method)
+    res = mrjax.fit(name, batch, key=0, **METHODS[method])
+    assert res.method == method
     truth_rms = rms_per_condition(model, truth, batch)
     if method == "lm":
         start = np.broadcast_to(np.clip(model.default_start(), *model.bounds), truth.shape)
@@ -64,21 +65,30 @@ def test_methods(name, method):
         assert np.all(res.rms <= 1.005 * truth_rms)
 
 
-def test_settings_objects_and_keywords_agree(grid):
-    """The keyword options set fields of the settings objects (one mapping): the same fit either
-    way, bit for bit; a keyword given wins over the object's field."""
+def test_cli_builds_the_settings_objects_users_build(grid):
+    """The settings are objects only (no keyword copies of their fields): the command line's
+    options build the same `Swarm` and `Polish` a Python user builds, and the same objects give
+    the same fit, bit for bit."""
+    from mrjax.cli._fit import fit_settings
+    from mrjax.cli._main import build_parser
+
+    def cli(*flags):
+        return fit_settings(build_parser().parse_args(["fit", "x.csv", "--model", "kwok", *flags]))
+
+    swarm = mrjax.Swarm(mode="full", restarts=2, max_generations=30)
+    assert cli("--swarm", "full", "--restarts", "2", "--max-generations", "30") == (
+        swarm, mrjax.Polish())
+    assert cli("--method", "pso", "--no-retry") == (mrjax.Swarm(), None)
+    assert cli("--method", "lm", "--no-retry") == (None, mrjax.Polish(retry=False))
     sub = grid.subset([0, 20])
-    a = mrjax.fit("kwok", sub, seed=2, swarm=mrjax.Swarm(mode="full", restarts=2,
-                                                          max_generations=30),
-                  polish=mrjax.Polish(max_steps=40, tol=1e-7))
-    b = mrjax.fit("kwok", sub, seed=2, swarm_mode="full", restarts=2, max_generations=30,
-                  polish_steps=40, polish_tol=1e-7)
+    polish = mrjax.Polish(max_steps=40, tol=1e-7)
+    a = mrjax.fit("kwok", sub, key=2, swarm=swarm, polish=polish)
+    b = mrjax.fit("kwok", sub, key=2, swarm=cli("--swarm", "full", "--restarts", "2",
+                                                "--max-generations", "30")[0], polish=polish)
     np.testing.assert_array_equal(a.theta, b.theta)
     np.testing.assert_array_equal(a.history, b.history)
-    c = mrjax.fit("kwok", sub, seed=2, swarm=mrjax.Swarm(mode="full", restarts=2,
-                                                          max_generations=5),
-                  max_generations=30, polish=mrjax.Polish(max_steps=40, tol=1e-7))
-    np.testing.assert_array_equal(a.theta, c.theta)
+    with pytest.raises(TypeError):  # the old keyword copies of the fields are gone
+        mrjax.fit("kwok", sub, max_generations=30)
 
 
 def test_settings_are_checked_at_construction():
@@ -89,8 +99,11 @@ def test_settings_are_checked_at_construction():
     for bad in (dict(max_steps=0), dict(tol=-1.0), dict(tol=float("nan"))):
         with pytest.raises(mrjax.InputError):
             mrjax.Polish(**bad)
-    with pytest.raises(mrjax.InputError, match="unknown option"):
-        engine.settings(method="pso+lm", particles=3)
+    for bad in (dict(size=0), dict(resume=True), dict(journal="j", resume="yes")):
+        with pytest.raises(mrjax.InputError):
+            mrjax.Chunks(**bad)
+    with pytest.raises(mrjax.InputError, match="nothing to run"):
+        engine.check_settings(None, None)
     with pytest.raises(mrjax.InputError, match="must be a mrjax.Swarm"):
         mrjax.fit("kwok", paper_grid().subset([0]), swarm="full")
 
@@ -116,17 +129,18 @@ def test_every_kind_runs_through_the_one_engine(grid, monkeypatch):
     monkeypatch.setattr(run, "run_swarm", swarm)
     monkeypatch.setattr(run, "solve_box", box)
     sub = grid.subset([0, 6, 12, 18, 24, 30])  # 1 Hz / 4 mm at six currents
-    res = mrjax.fit("kwok", sub, seed=0, max_generations=40)
+    res = mrjax.fit("kwok", sub, key=0, swarm=mrjax.Swarm(max_generations=40))
     assert seen == [("swarm", "TestsProblem"), ("polish", "ConditionResidual"),
                     ("polish", "ConditionResidual")]
     assert res.starts_rms.shape == (6, 2)
     assert np.all(res.rms <= res.starts_rms.min(axis=1) * (1 + 1e-12))
     seen.clear()
-    gm = mrjax.generalize.generalize(res, sub, method="joint", seed=0, max_generations=20)
+    gm = mrjax.generalize.generalize(res, sub, method="joint", key=0,
+                                     swarm=mrjax.Swarm(max_generations=20))
     assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]
-    assert gm.total_rms <= gm.info["two_step_total_rms_N"]
+    assert gm.total_rms <= gm.report.two_step_rms
     seen.clear()
-    mrjax.generalize.identify(sub, "kwok", lag=None, seed=0, max_generations=20)
+    mrjax.generalize.identify(sub, "kwok", lag=None, key=0, swarm=mrjax.Swarm(max_generations=20))
     assert seen == [("swarm", "LawsProblem"), ("polish", "LawResidual")]
     assert set(PROBLEM_KINDS) == {"TestsProblem", "LawsProblem"}
 
@@ -140,7 +154,8 @@ def test_compiled_code_is_released_near_the_map_limit(grid):
 
     if map_count() is None:
         pytest.skip("no /proc/self/maps on this system")
-    mrjax.fit("kwok", grid.subset([0, 3]), seed=0, n_particles=17, uncertainty=False)
+    mrjax.fit("kwok", grid.subset([0, 3]), key=0, swarm=mrjax.Swarm(n_particles=17),
+              polish=mrjax.Polish(uncertainty=False))
     before = map_count()
     assert not release_code(share=1.0) and map_count() >= before - 50
     with pytest.warns(RuntimeWarning, match="caches were emptied"):
