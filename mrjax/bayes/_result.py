@@ -255,11 +255,14 @@ class Posterior:
         return float(np.sum(self.warmup_steps) / max(np.sum(length) * self.n_chains, 1))
 
     def unconverged(self) -> np.ndarray:
-        """(U,) the units whose chains missed: R-hat > `RHAT_MAX` or bulk or tail ESS <
-        `ESS_MIN` for a sampled variable (held ones excepted), or a divergent transition."""
+        """(U,) the units whose chains missed: R-hat > `RHAT_MAX` or bulk or tail ESS below
+        `ESS_MIN` (or a quarter of the draws kept, where they are fewer than 4 x `ESS_MIN`:
+        more rounds of the same draws could not reach it) for a sampled variable (held ones
+        excepted), or a divergent transition."""
         bad = self.diverging.any(axis=(1, 2))
-        for key, miss in (("r_hat", lambda a: a > RHAT_MAX), ("ess_bulk", lambda a: a < ESS_MIN),
-                          ("ess_tail", lambda a: a < ESS_MIN)):
+        ess_min = min(ESS_MIN, 0.25 * self.n_chains * self.n_draws)
+        for key, miss in (("r_hat", lambda a: a > RHAT_MAX), ("ess_bulk", lambda a: a < ess_min),
+                          ("ess_tail", lambda a: a < ess_min)):
             for v, a in self._diag[key].items():
                 a2 = a.reshape(a.shape[0], -1)
                 skip = self.held[:, self.names.index(v)] if v in self.names else False

@@ -238,7 +238,7 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
 def _posterior(lk: Likelihood, su: _Setup, prep: _Prepared, sampler: Sampler, noise: str,
                out, seed: Any, timings: dict[str, float]) -> Posterior:
     theta, sigma, rho, (lp, div, steps, acc), step_size, warm_steps = out
-    U = su.theta0.shape[0]
+    U = np.shape(theta)[0]  # the units drawn (a continuation: those it ran)
     return Posterior(
         names=su.names, labels=su.labels, unit_dim=lk.unit_dim,
         row_labels=None if lk.row_labels is None else tuple(map(str, lk.row_labels)),
