@@ -56,7 +56,12 @@ def assert_same_to_rounding(a: FitResult, b: FitResult) -> None:
 
 #: Options of every kwok fit here (shared compiled programs). Many particles make small chunks
 #: possible (see `mrjax.fitting.MIN_CHUNK_ELEMENTS`): chunks of 12 of these 30 tests.
-KWOK = dict(n_particles=200, max_generations=30, restarts=2, seed=3)
+KWOK_SWARM = mrjax.Swarm(n_particles=200, max_generations=30, restarts=2)
+KWOK = dict(swarm=KWOK_SWARM, key=3)
+#: The same swarm alone (no polish).
+KWOK_PSO = dict(KWOK, polish=None)
+#: The smallest chunks allowed.
+SMALLEST = mrjax.Chunks(size=1)
 
 
 @pytest.fixture(scope="module")
@@ -93,13 +98,13 @@ def test_parse_memory():
 def test_chunk_plan_of_a_fit(kwok30):
     """What a fit would run: 30 tests, 2 restarts x 200 particles: chunks of at least 11
     tests (4,097 rows x particles), in vectors of 4 (float64)."""
-    plan = mrjax.fitting.chunk_plan("kwok", kwok30, **dict(KWOK, chunk_size=1))
+    plan = mrjax.fitting.chunk_plan("kwok", kwok30, swarm=KWOK_SWARM, chunks=SMALLEST)
     assert (plan.size, plan.n_chunks) == (12, 3)
-    assert mrjax.fitting.chunk_plan("kwok", kwok30, **KWOK).size == 32  # one aligned chunk
-    plan = mrjax.fitting.chunk_plan("kwok", kwok30, max_memory="8GB")
+    assert mrjax.fitting.chunk_plan("kwok", kwok30, swarm=KWOK_SWARM).size == 32  # aligned
+    plan = mrjax.fitting.chunk_plan("kwok", kwok30, chunks=mrjax.Chunks(max_memory="8GB"))
     assert plan.n_chunks == 1 and 0.5e6 < plan.per_condition < 5e6
-    with pytest.raises(mrjax.InputError, match="unknown option"):
-        mrjax.fitting.chunk_plan("kwok", kwok30, max_memroy="8GB")
+    with pytest.raises(TypeError, match="max_memroy"):
+        mrjax.Chunks(max_memroy="8GB")
 
 
 def test_plan_chunks():
@@ -145,12 +150,12 @@ def test_chunked_equals_unchunked(model, kwok30, dahl30):
     chunk and the whole batch are different compiled shapes, whose sums another CPU may
     vectorise differently."""
     if model == "kwok":  # 3 chunks
-        batch, options = kwok30, dict(KWOK, polish_steps=30)
+        batch, options = kwok30, dict(KWOK, polish=mrjax.Polish(max_steps=30))
     else:  # 2 chunks
-        batch, options = dahl30, dict(method="pso", n_particles=200, max_generations=6,
-                                      uncertainty=False, seed=3)
+        batch, options = dahl30, dict(swarm=mrjax.Swarm(n_particles=200, max_generations=6),
+                                      polish=None, key=3)
     one = mrjax.fit(model, batch, **options)
-    chunked = mrjax.fit(model, batch, chunk_size=1, **options)  # the smallest chunks allowed
+    chunked = mrjax.fit(model, batch, chunks=SMALLEST, **options)
     assert_same_to_rounding(one, chunked)
     assert set(chunked.timings) >= {"prepare", "swarm", "start", "total"}
 
@@ -170,7 +175,7 @@ def test_progress_bar_counts_chunks_and_conditions(capsys):
 
 
 def test_state_round_trip_and_concatenate(kwok30):
-    res = mrjax.fit("kwok", kwok30, **dict(KWOK, method="pso", uncertainty=False))
+    res = mrjax.fit("kwok", kwok30, **KWOK_PSO)
     res = FitResult.concatenate([res.subset([0, 1]), res.subset(np.arange(2, 30))])
     back = FitResult.from_state(json.loads(json.dumps(res.to_state())), res.model)
     assert_identical(res, back)
@@ -181,12 +186,12 @@ def test_state_round_trip_and_concatenate(kwok30):
 
 def test_budget_too_small_fails_before_any_work(kwok30, tmp_path):
     with pytest.raises(mrjax.InputError, match="memory budget .* too small"):
-        mrjax.fit("kwok", kwok30, max_memory="10MB")
+        mrjax.fit("kwok", kwok30, chunks=mrjax.Chunks(max_memory="10MB"))
     with pytest.raises(mrjax.InputError, match="resume needs a journal"):
-        mrjax.fit("kwok", kwok30, resume=True)
+        mrjax.fit("kwok", kwok30, chunks=mrjax.Chunks(resume=True))
     (tmp_path / "notes.txt").write_text("mine")  # never deleted as if it were a journal
     with pytest.raises(mrjax.InputError, match="not an mrjax journal"):
-        mrjax.fit("kwok", kwok30, journal=tmp_path, **dict(KWOK, chunk_size=1))
+        mrjax.fit("kwok", kwok30, chunks=mrjax.Chunks(journal=tmp_path, size=1), **KWOK)
     assert (tmp_path / "notes.txt").read_text() == "mine"
 
 
@@ -206,25 +211,27 @@ class Interrupt:
 def test_journal_resume_in_python(kwok30, tmp_path, monkeypatch):
     import mrjax.fitting._chunks as chunks
 
-    kw = dict(KWOK, method="pso", uncertainty=False, chunk_size=1)
-    whole = mrjax.fit("kwok", kwok30, **kw)
+    kw = KWOK_PSO
+    whole = mrjax.fit("kwok", kwok30, chunks=SMALLEST, **kw)
     journal = tmp_path / "journal"
+    written = mrjax.Chunks(size=1, journal=journal)
+    resume = mrjax.Chunks(size=1, journal=journal, resume=True)
     stage = Interrupt(chunks.fit_chunk, 2, RuntimeError("power cut"))
     monkeypatch.setattr(chunks, "fit_chunk", stage)
     with pytest.raises(RuntimeError, match="power cut"):
-        mrjax.fit("kwok", kwok30, journal=journal, **kw)
+        mrjax.fit("kwok", kwok30, chunks=written, **kw)
     assert sorted(p.name for p in journal.iterdir()) == ["chunk-00001.json", "manifest.json"]
     manifest = json.loads((journal / "manifest.json").read_text())
     assert manifest["n_chunks"] == 3 and manifest["chunk_size"] == 12
     # resume: only the two missing chunks run; the result is the uninterrupted one
     stage = Interrupt(chunks.fit_chunk.stage, 0, None)
     monkeypatch.setattr(chunks, "fit_chunk", stage)
-    resumed = mrjax.fit("kwok", kwok30, journal=journal, resume=True, **kw)
+    resumed = mrjax.fit("kwok", kwok30, chunks=resume, **kw)
     assert stage.calls == 2
     assert_identical(whole, resumed)
     # another seed: the journal does not match
     with pytest.raises(mrjax.InputError, match="cannot resume.*other data or options"):
-        mrjax.fit("kwok", kwok30, journal=journal, resume=True, **dict(kw, seed=4))
+        mrjax.fit("kwok", kwok30, chunks=resume, **dict(kw, key=4))
 
 
 @pytest.fixture(scope="module")
@@ -325,6 +332,6 @@ def test_cli_devices_two_cpu_devices(csv30, tmp_path):
 
 
 def test_compare_passes_the_memory_options(kwok30):
-    assert {"max_memory", "chunk_size"} <= set(mrjax.comparison.FIT_OPTIONS)
     with pytest.raises(mrjax.InputError, match="memory budget .* too small"):  # before any fit
-        mrjax.compare(kwok30, models=["bingham"], generalize_methods=(), max_memory="1MB")
+        mrjax.compare(kwok30, models=["bingham"], held_out=None,
+                      chunks=mrjax.Chunks(max_memory="1MB"))

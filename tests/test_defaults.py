@@ -112,8 +112,8 @@ def test_fit_retries_and_warns_where_the_starts_disagree(one_current, monkeypatc
     batch, truth = one_current
     real = chunks.fit_chunk
 
-    def corrupted(model, data, run, **kw):
-        res = real(model, data, run, **kw)
+    def corrupted(model, data, run, *args, **kw):
+        res = real(model, data, run, *args, **kw)
         theta = res.theta.copy()
         theta[0] = theta[0] * np.array([1.0, 1.0, 0.3, 0.05, 0.2, 1.0])
         rms = res.rms.copy()
@@ -121,7 +121,8 @@ def test_fit_retries_and_warns_where_the_starts_disagree(one_current, monkeypatc
         return dataclasses.replace(res, theta=theta, rms=rms, nrmse=res.nrmse * rms / res.rms)
 
     monkeypatch.setattr(chunks, "fit_chunk", corrupted)
-    res = mrjax.fit("kwok", batch, seed=0, max_generations=40)
+    swarm = mrjax.Swarm(max_generations=40)
+    res = mrjax.fit("kwok", batch, key=0, swarm=swarm)
     assert res.starts_rms.shape == (6, 2)
     assert res.starts_rms[0, 0] > (1 + SPREAD_MARGIN) * res.starts_rms[0, 1]
     np.testing.assert_allclose(res.rms, res.starts_rms.min(axis=1))
@@ -134,7 +135,7 @@ def test_fit_retries_and_warns_where_the_starts_disagree(one_current, monkeypatc
     assert w and w[0]["conditions"] == [batch.labels[0]]
     assert len(doc["conditions"][0]["starts_rms_N"]) == 2
     # without the retry: one start, no evidence, no warning
-    off = mrjax.fit("kwok", batch, seed=0, max_generations=40, retry=False)
+    off = mrjax.fit("kwok", batch, key=0, swarm=swarm, polish=Polish(retry=False))
     assert off.starts_rms is None and "warning" not in off.table()
     assert off.rms[0] > 3 * res.rms[0]
 
@@ -184,11 +185,12 @@ def test_saturating_law_recovered_jointly():
                                     cycles=1.5, noise=2.0, seed=int(40 * i + f))
             conds.append(c)
     batch = mrjax.data.make_batch(conds)
-    res = mrjax.fit(model, batch, seed=0, max_generations=40)
-    gm = generalize(res, batch, method="joint", seed=0, max_generations=20)  # auto: default
+    res = mrjax.fit(model, batch, key=0, swarm=mrjax.Swarm(max_generations=40))
+    gm = generalize(res, batch, method="joint", key=0,
+                    swarm=mrjax.Swarm(max_generations=20))  # auto: default
     assert gm.laws["alpha"].kind == "sat" and gm.laws["alpha"].scale == pytest.approx(s_true)
     np.testing.assert_allclose(gm.laws["alpha"].coefficients, (100.0, 900.0), rtol=0.03)
-    assert gm.info["law_forms"]["alpha"] == "sat(0.4)"
+    assert gm.laws["alpha"].form == "sat(0.4)" and gm.report.law_choice.startswith("auto")
     assert "law forms chosen by the data" in gm.summary()
     doc = json.loads(gm.to_json())
     assert doc["law_forms"]["alpha"] == "sat(0.4)" and doc["law_choice"].startswith("auto")
@@ -196,7 +198,7 @@ def test_saturating_law_recovered_jointly():
     u = np.linspace(0, 2, 7)
     np.testing.assert_allclose(np.asarray(back.params_at(u)), np.asarray(gm.params_at(u)))
     fixed = generalize(res, batch, laws="fixed")  # the model's default degrees
-    assert fixed.laws["alpha"].form == "poly2" and fixed.info["law_forms"]["alpha"] == "poly2"
+    assert fixed.laws["alpha"].form == "poly2" and fixed.report.law_choice == "given"
     assert json.loads(fixed.to_json())["law_choice"] == "given"
     with pytest.raises(mrjax.InputError, match="scale"):
         Law("sat", (1.0, 2.0))

@@ -6,7 +6,8 @@
     through `mrjax fit` (exit 2, one `mrjax: error:` line, no traceback unless `--debug`, no
     output, every file under `tmp_path`, an existing output directory included, byte-identical).
     Decisions: fewer scored samples than parameters + 1 is an error; a record shorter than one
-    excitation period is a warning; `method="lm"` clips the default start onto the bounds.
+    excitation period is a warning; a fit without a swarm (`swarm=None`) clips the default
+    start onto the bounds.
 2. **Numerical faults.** Diverging particles score `inf`, never NaN; the polish never returns
     worse than its start; gradients of the fitness are finite where z = 0 and at n = 1 and 3.
 3. **Batch invariance** (hypothesis): the fitness and the swarm's result of a condition do not
@@ -52,11 +53,13 @@ import mrjax
 from mrjax import InputError, cli
 from mrjax.data import Condition, load, make_batch, paper_grid, paper_parameters
 from mrjax.fitting import save
+from mrjax.fitting import tests_problem as make_problem
 from mrjax.models import check_bounds, get
 from mrjax.objective import fitness, residuals, rms_per_condition
-from mrjax.refine import polish
 
 GENERATIONS = 5
+#: The swarm alone for a fixed number of generations (`method="pso"` in fit.json).
+PSO = dict(swarm=mrjax.Swarm(generations=GENERATIONS), polish=None)
 
 
 # --------------------------------------------------------------------------------------------
@@ -338,8 +341,7 @@ _RESULT = []
 def _fit_result():
     """A real FitResult for the output kinds (the shared (4, 200) swarm compile)."""
     if not _RESULT:
-        _RESULT.append(mrjax.fit("kwok", SMALL, method="pso", generations=GENERATIONS,
-                                 uncertainty=False))
+        _RESULT.append(mrjax.fit("kwok", SMALL, **PSO))
     return _RESULT[0]
 
 
@@ -438,7 +440,7 @@ def test_bad_input_cli(kind, build, needles, tmp_path):
 def test_key_count_must_match_conditions():
     keys = jax.random.split(jax.random.key(0), 3)
     with pytest.raises(InputError, match="got 3 keys for 4 "):
-        mrjax.fit("kwok", SMALL, key=keys, method="pso", generations=GENERATIONS)
+        mrjax.fit("kwok", SMALL, key=keys, **PSO)
 
 
 # --------------------------------------------------------------------------------------------
@@ -461,7 +463,7 @@ def small_batch(small_csv):
 def small_fit(small_batch):
     """The in-process twin of `mrjax fit small.csv --generations 5 --seed 3` (compiles the
     shared (4, 200) swarm and polish)."""
-    return mrjax.fit("kwok", small_batch, generations=GENERATIONS, seed=3)
+    return mrjax.fit("kwok", small_batch, swarm=mrjax.Swarm(generations=GENERATIONS), key=3)
 
 
 def test_lm_start_outside_bounds_is_clipped(small_batch, small_fit, small_csv, tmp_path):
@@ -470,7 +472,8 @@ def test_lm_start_outside_bounds_is_clipped(small_batch, small_fit, small_csv, t
     lo, hi = {"c": 1000.0, "beta": 200.0}, {"c": 5000.0, "beta": 2000.0}
     start = get("kwok").default_start()
     assert not (lo["c"] <= start[0] <= hi["c"]) and not (lo["beta"] <= start[3] <= hi["beta"])
-    res = mrjax.fit("kwok", small_batch, method="lm", bounds=(lo, hi), uncertainty=False)
+    res = mrjax.fit("kwok", small_batch, swarm=None, bounds=(lo, hi),
+                    polish=mrjax.Polish(uncertainty=False))
     th = res.theta
     assert np.all((th[:, 0] >= 1000.0) & (th[:, 0] <= 5000.0))
     assert np.all((th[:, 3] >= 200.0) & (th[:, 3] <= 2000.0))
@@ -498,8 +501,7 @@ def test_record_shorter_than_a_period_warns(small_fit, tmp_path):
     batch = _short_record_batch()
     assert (batch.n_conditions, batch.length) == (4, 200)
     with pytest.warns(RuntimeWarning, match="'short'.*less than one period of its 1 Hz"):
-        res = mrjax.fit("kwok", batch, method="pso", generations=GENERATIONS,
-                        uncertainty=False)
+        res = mrjax.fit("kwok", batch, **PSO)
     assert np.all(np.isfinite(res.rms)) and np.all(np.isfinite(res.theta))
     csv_file = write_csv(tmp_path / "short.csv", csv_rows(batch.conditions()))
     code, _, err = run(["fit", csv_file, "--model", "kwok", "--generations", GENERATIONS,
@@ -538,7 +540,8 @@ def test_diverging_particles_score_inf_and_reported_rms_is_finite(small_batch, t
                                                  c.force[0], c.mask[0])))(thetas)
     scores = np.asarray(scores)
     assert not np.any(np.isnan(scores)) and np.mean(np.isinf(scores)) > 0.3
-    res = mrjax.fit(BW1, small_batch, bounds=(lo, hi), generations=GENERATIONS, polish_steps=1)
+    res = mrjax.fit(BW1, small_batch, bounds=(lo, hi), swarm=mrjax.Swarm(generations=GENERATIONS),
+                    polish=mrjax.Polish(max_steps=1))
     for a in (res.rms, res.pso_rms, res.history, res.theta):
         assert np.all(np.isfinite(a))
     assert np.all(np.diff(res.history, axis=1) <= 0)  # the group best never gets worse
@@ -549,17 +552,21 @@ def test_diverging_particles_score_inf_and_reported_rms_is_finite(small_batch, t
     names = BW1.param_names
     start[2, [names.index(n) for n in ("delta", "beta", "gamma")]] = 1e5, -5000.0, -5000.0
     assert not np.isfinite(rms_per_condition(BW1, start, small_batch)[2])
-    pol = polish(BW1, start, small_batch, lower=lo, upper=hi, max_steps=1)
-    rms, rms0 = np.asarray(pol.rms), np.asarray(pol.rms_start)
+    # (the engine's polish stage alone from `start`, inside the box)
+    assert np.all((start >= lo) & (start <= hi))
+    pol = mrjax.engine.solve(make_problem(BW1, small_batch, bounds=(lo, hi)), swarm=None,
+                             polish=mrjax.Polish(max_steps=1), start=start)
+    rms, rms0 = np.asarray(pol.rms), np.asarray(pol.start.rms)
     assert np.all(rms[[0, 1, 3]] <= rms0[[0, 1, 3]]) and np.all(np.isfinite(rms[[0, 1, 3]]))
     assert pol.status[2] == "kept_start" and np.isinf(rms0[2])
-    np.testing.assert_array_equal(np.asarray(pol.theta)[2], start[2])
+    np.testing.assert_array_equal(np.asarray(pol.z)[2], start[2])
     # Bounds where every start diverges: the fit warns and reports inf (null in fit.json).
     # (Before, FitResult.to_json raised "Out of range float values are not JSON compliant".)
     doomed = ({"delta": 4000.0, "beta": -5000.0, "gamma": -5000.0},
               {"beta": -4000.0, "gamma": -4000.0})
     with pytest.warns(RuntimeWarning, match="not finite at the fitted parameters"):
-        res = mrjax.fit(BW1, small_batch, method="lm", bounds=doomed, polish_steps=1)
+        res = mrjax.fit(BW1, small_batch, swarm=None, bounds=doomed,
+                        polish=mrjax.Polish(max_steps=1))
     assert np.all(np.isinf(res.rms)) and set(res.polish_status) == {"kept_start"}
     save(res, tmp_path / "o")
     doc = json.loads((tmp_path / "o" / "fit.json").read_text())
@@ -666,7 +673,7 @@ def _compare_fits(a, i, b, j):
 @settings(**{**HYPOTHESIS, "max_examples": 8})
 @given(random_tests("kwok", lengths=(200, 150, 120, 90), damper=True), st.integers(0, 3))
 def test_swarm_result_independent_of_batch_split_and_padding(case, alone_index):
-    """`mrjax.fit(method="pso")` with per-condition keys: a condition's result is the same in
+    """`mrjax.fit(polish=None)` with per-condition keys: a condition's result is the same in
     the batch, fitted alone, and in the batch padded further (shapes (4, 200), (1, 200) and
     (4, 256): three compiles for all examples).
 
@@ -676,7 +683,7 @@ def test_swarm_result_independent_of_batch_split_and_padding(case, alone_index):
     last-bit differences pick different, equally good, parameters."""
     conds, _, order = case
     keys = jax.random.split(jax.random.key(42), 4)  # one per condition, in `conds` order
-    kw = dict(method="pso", generations=GENERATIONS, uncertainty=False)
+    kw = PSO
     batch = make_batch([conds[i] for i in order])
     k = keys[np.asarray(order)]
     whole = mrjax.fit("kwok", batch, key=k, **kw)

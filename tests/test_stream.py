@@ -4,7 +4,7 @@ memory, bit for bit (same chunks, keys, padded length and swarm-view length)."""
 
 import numpy as np
 import pytest
-from test_chunks import KWOK, assert_identical
+from test_chunks import KWOK_PSO, SMALLEST, assert_identical
 
 import mrjax
 import mrjax.fitting._chunks as chunks
@@ -26,7 +26,7 @@ def test_streamed_fit_equals_the_fit_in_memory(kwok_csv, monkeypatch):
     source = Source.scan(path, keep_bytes=0)
     assert not source.kept and source.n_conditions == 30
     monkeypatch.setattr(chunks, "CHECK_BYTES", 20 * source.batch_bytes(1))  # check 5 at a time
-    options = dict(KWOK, method="pso", uncertainty=False, chunk_size=1)  # chunks of 12
+    options = dict(KWOK_PSO, chunks=SMALLEST)  # chunks of 12
     reads = []
     take = chunks.Source.batch
     monkeypatch.setattr(chunks.Source, "batch",
@@ -49,8 +49,8 @@ def test_streamed_fit_keeps_the_view_of_the_whole(tmp_path, monkeypatch):
     to_frame(batch).to_parquet(tmp_path / "dahl.parquet", index=False)
     source = Source.scan(tmp_path / "dahl.parquet", keep_bytes=0)
     monkeypatch.setattr(chunks, "CHECK_BYTES", 12 * source.batch_bytes(1))
-    options = dict(method="pso", n_particles=200, max_generations=6, uncertainty=False, seed=3,
-                   chunk_size=1)
+    options = dict(swarm=mrjax.Swarm(n_particles=200, max_generations=6), polish=None, key=3,
+                   chunks=SMALLEST)
     assert_identical(mrjax.fit("dahl", batch, **options), mrjax.fit("dahl", source, **options))
 
 
@@ -64,8 +64,8 @@ def test_streamed_fit_checks_every_test_before_any_work(kwok_csv, tmp_path, monk
     fitted = []
     monkeypatch.setattr(chunks, "fit_chunk", lambda *a, **k: fitted.append(1))
     with pytest.raises(mrjax.InputError, match="not strictly increasing"):
-        mrjax.fit("kwok", Source.scan(tmp_path / "bad.csv", keep_bytes=0), chunk_size=1,
-                  **dict(KWOK, method="pso"))
+        mrjax.fit("kwok", Source.scan(tmp_path / "bad.csv", keep_bytes=0), chunks=SMALLEST,
+                  **KWOK_PSO)
     assert not fitted
 
 

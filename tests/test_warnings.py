@@ -34,27 +34,28 @@ def one_current():
 def capped(one_current):
     """Fitted with `c` capped at half its true value (3161 N s/m at 1 A)."""
     batch, truth = one_current
-    return mrjax.fit("kwok", batch, bounds=({}, {"c": 0.5 * truth[0, 0]}), seed=0)
+    return mrjax.fit("kwok", batch, bounds=({}, {"c": 0.5 * truth[0, 0]}), key=0)
 
 
 @pytest.fixture(scope="module")
 def free(one_current):
-    return mrjax.fit("kwok", one_current[0], seed=0)
+    return mrjax.fit("kwok", one_current[0], key=0)
 
 
 def test_a_parameter_at_a_bound_is_flagged(one_current, capped):
     batch, truth = one_current
     np.testing.assert_allclose(capped.param("c"), 0.5 * truth[0, 0], rtol=1e-3)  # on the bound
     (w,) = capped.warnings()
-    assert w["kind"] == "at_bound" and w["parameters"] == ["c"]
-    assert w["conditions"] == list(batch.labels)
-    assert "c at a bound of the search box in 2 tests" in w["message"]
-    assert "upper bound" in w["message"] and "--bounds" in w["message"]
-    assert capped.table().splitlines()[-1] == f"warning: {w['message']}"
+    assert isinstance(w, mrjax.ResultWarning) and str(w) == w.message
+    assert w.kind == mrjax.WarningKind.AT_BOUND and w.parameters == ("c",)
+    assert w.conditions == tuple(batch.labels)
+    assert "c at a bound of the search box in 2 tests" in w.message
+    assert "upper bound" in w.message and "--bounds" in w.message
+    assert capped.table().splitlines()[-1] == f"warning: {w.message}"
     doc = json.loads(capped.to_json())
-    assert doc["warnings"] == [w]
+    assert doc["warnings"] == [w.to_dict()] and doc["warnings"][0]["kind"] == "at_bound"
     # the search box travels with the result (subsets, chunks, journals)
-    assert capped.subset([1]).warnings()[0]["conditions"] == [batch.labels[1]]
+    assert capped.subset([1]).warnings()[0].conditions == (batch.labels[1],)
     back = mrjax.FitResult.from_state(json.loads(json.dumps(capped.to_state())), capped.model)
     assert back.warnings() == capped.warnings()
 
@@ -70,24 +71,24 @@ def test_not_identifiable_parameters_are_flagged(free):
     ident = np.ones_like(free.identifiable)
     ident[1, [2, 3]] = False  # as `mrjax.refine.uncertainty` flags a null direction
     (w,) = dataclasses.replace(free, identifiable=ident).warnings()
-    assert w["kind"] == "not_identifiable" and w["parameters"] == ["alpha", "beta"]
-    assert w["conditions"] == [free.labels[1]]
+    assert w.kind == mrjax.WarningKind.NOT_IDENTIFIABLE and w.parameters == ("alpha", "beta")
+    assert w.conditions == (free.labels[1],)
 
 
 def test_laws_from_too_few_currents_are_flagged(one_current, free):
     batch, _ = one_current
     gm = mrjax.generalize.generalize(free, batch, method="two-step")
     assert all(len(gm.coefficients(n)) == 1 for n in gm.param_names)  # reduced to constants
-    (w,) = [w for w in free.warnings(gm) if w["kind"] == "too_few_currents"]
-    assert w["parameters"] == ["c", "k", "alpha", "delta", "f0"]  # beta is constant anyway
-    assert "from 1 distinct current (1 A)" in w["message"] and "constants" in w["message"]
-    assert json.loads(free.to_json(generalized=gm))["warnings"] == [w]
+    (w,) = [w for w in free.warnings(gm) if w.kind == mrjax.WarningKind.TOO_FEW_CURRENTS]
+    assert w.parameters == ("c", "k", "alpha", "delta", "f0")  # beta is constant anyway
+    assert "from 1 distinct current (1 A)" in w.message and "constants" in w.message
+    assert json.loads(free.to_json(generalized=gm))["warnings"] == [w.to_dict()]
     # two currents determine the linear laws, not alpha's quadratic one
     two = paper_grid(**TWO_CURRENTS)
-    res = mrjax.fit("kwok", two, seed=0)
+    res = mrjax.fit("kwok", two, key=0)
     gm2 = mrjax.generalize.generalize(res, two, method="two-step")
     (w2,) = res.warnings(gm2)
-    assert w2["parameters"] == ["alpha"] and "of degree at most 1" in w2["message"]
+    assert w2.parameters == ("alpha",) and "of degree at most 1" in w2.message
 
 
 def _csv(batch, path):
