@@ -66,30 +66,26 @@ class Model(AbstractModel):
 
     ```python
     import jax.numpy as jnp
-    from mrjax.models import Model, Parameter, fix, safe_abs_pow
+    from mrjax.models import Model, Parameter, fix
 
-    def force(p, x, xdot, z):               # one instant; z the state, shape (1,)
-        return p.c * xdot + p.k * x + p.alpha * z[0] + p.f0
+    def force(p, x, xdot, w):           # one instant; w the state, shape (1,)
+        return p.c * xdot + p.alpha * w[0] + p.f0
 
-    def rate(p, x, xdot, z):                # dz/dt, the state's shape (1,)
-        zn = safe_abs_pow(z, p.n)           # |z|^n with finite derivatives at z = 0
-        return p.A * xdot - p.beta * jnp.abs(xdot) * jnp.sign(z) * zn - p.gamma * xdot * zn
+    def rate(p, x, xdot, w):            # dw/dt, an array of the state's shape (1,)
+        return p.rho * (xdot - jnp.abs(xdot) * w)
 
-    BoucWenA = Model("bouc_wen_a", [
+    MyDahl = Model("my_dahl", [
         Parameter("c", "N*s/m", 0.0, 1e5, linear=True),
-        Parameter("k", "N/m", -1e5, 1e5, linear=True),
-        Parameter("alpha", "N/m", 0.0, 1e7, linear=True),
+        Parameter("alpha", "N", 0.0, 2500.0, linear=True),
+        Parameter("rho", "1/m", 1.0, 1e4, log=True),
         Parameter("f0", "N", -1e3, 1e3, linear=True),
-        Parameter("A", "-", 0.1, 10.0),
-        Parameter("beta", "1/m", -1e4, 1e4),
-        Parameter("gamma", "1/m", -1e4, 1e4),
-        Parameter("n", "-", 1.0, 3.0),
     ], force, rate=rate, state_size=1)
-    BoucWenA1 = fix(BoucWenA, {"A": 1.0})   # A held at 1: seven unknowns
+    MyDahl0 = fix(MyDahl, {"f0": 0.0})  # f0 held at 0: three unknowns
     ```
 
-    `mrjax fit DATA --model file.py:BoucWenA1` (or `mrjax.fit(BoucWenA1, data)`) fits it;
-    `mrjax models --model file.py:BoucWenA1` lists it with the checks it passed.
+    `mrjax fit DATA --model file.py:MyDahl0` (or `mrjax.fit(MyDahl0, data)`) fits it;
+    `mrjax models --model file.py:MyDahl0` lists it with the checks it passed. More in
+    `examples/my_models.py` (Bouc-Wen by its equations).
 
     **Arguments:**
 
