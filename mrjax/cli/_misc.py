@@ -64,4 +64,5 @@ def _model_block(m, also: list[str], source: str, markdown: bool, format_table) 
     table = format_table(rows, ["parameter", "unit", "lower", "upper", "linear"],
                          style="markdown" if markdown else "plain", floatfmt="g")
     held = ", ".join(f"{n} = {v:g}" for n, v in m.fixed.items())
-    return head + "\n" + table + (f"\nfixed: {held}" if held else "")
+    return head + "\n" + table + ((("\n\n" if markdown else "\n") + f"fixed: {held}")
+                                   if held else "")

@@ -95,8 +95,8 @@ class Fixed(AbstractModel):
 
     @property
     def description(self) -> str:
-        held = ", ".join(f"{n} = {v:g}" for n, v in self.values)
-        return f"{self.model.description} ({held} fixed)".lstrip()
+        held = ", ".join(f"{n} = {v:g}" for n, v in self.values) + " fixed"
+        return f"{self.model.description} ({held})" if self.model.description else held
 
     @property
     def law_degrees(self) -> dict[str, int]:
