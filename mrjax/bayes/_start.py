@@ -440,7 +440,7 @@ def start(residual, theta0, lo, hi, data, free, noise, names=(), gauge=()) -> St
 def collapsible(residual, theta0, data, free, st: Start, kind, candidates, centre,
                 sd) -> list[int]:
     """Host: which of the `candidates` (indices of unknowns the residuals are declared affine
-    in, with a regressor no unknown changes: a model's `fixed_params`) the log-density
+    in, with a regressor no unknown changes: a model's `basis_params`) the log-density
     integrates out (:func:`mrjax.bayes.linear_marginal`), as positions in `free`. One is
     where, in every unit, it is free and not held, its prior flat (`kind` FLAT), the
     posterior's mode `centre` (U, Kf) at least `COLLAPSE_MARGIN` of its standard deviations

@@ -7,11 +7,7 @@ import numpy as np
 from jaxtyping import ArrayLike
 
 from .._errors import InputError
-from ..generalize import Z_SCALE_MODELS
 from ..models import AbstractModel, check_bounds, get
-
-#: Parameters of the Bouc-Wen-type models that change under a rescaling of z.
-_Z_SCALED = ("alpha", "delta", "beta", "gamma")
 
 
 def n_free_parameters(
@@ -44,17 +40,12 @@ def n_free_parameters(
     lo, hi = check_bounds(model, bounds)
     fixed = lo == hi
     k = int(np.sum(~fixed))
-    if model.name in Z_SCALE_MODELS:
-        ix = model.param_names.index
-
-        def pinned(name: str) -> bool:
-            return bool(fixed[ix(name)] and lo[ix(name)] != 0.0)
-
-        n_fixed_not_one = bool(fixed[ix("n")] and lo[ix("n")] != 1.0)
-        scale_pinned = (pinned("alpha") or pinned("delta")
-                        or ((pinned("beta") or pinned("gamma")) and n_fixed_not_one))
-        free_scaled = sum(not fixed[ix(n)] for n in _Z_SCALED)
-        if not scale_pinned and free_scaled >= 2:
+    sym = model.scale_symmetry
+    if sym is not None:
+        names = model.param_names
+        held = {n: float(lo[i]) for i, n in enumerate(names) if fixed[i]}
+        free_scaled = sum(n in names and not fixed[names.index(n)] for n in sym.scaled)
+        if not sym.pinned_by(held) and free_scaled >= 2:
             k -= 1
     return k
 

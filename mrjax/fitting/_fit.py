@@ -10,7 +10,7 @@ from jaxtyping import ArrayLike
 
 from ..data import Batch, Condition, Source, as_batch
 from ..engine import Chunks, Polish, Swarm
-from ..models import AbstractModel, get
+from ..models import AbstractModel, fix, get
 from ._chunks import fit_in_chunks
 from ._result import FitResult
 from ._run import make_run
@@ -74,8 +74,6 @@ def fit(
     """
     model = get(model)
     if fixed:
-        from ..models import fix  # TODO(models): top-level import once `fix` lands
-
         model = fix(model, fixed)
     data = data if isinstance(data, Source) else as_batch(data)
     run = make_run(model, data.n_conditions, swarm=swarm, polish=polish, key=key,

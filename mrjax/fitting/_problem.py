@@ -40,8 +40,8 @@ AUTO_PAGE = 8
 def scale_gauge(model: AbstractModel) -> tuple[str, ...]:
     """The unknown the posterior holds first where the records leave a direction undetermined:
     a Bouc-Wen-type model's z scale (delta)."""
-    # TODO(models): read the model's scale-symmetry property once it lands
-    return ("delta",) if model.name in ("bouc_wen", "modified_bouc_wen") else ()
+    sym = model.scale_symmetry
+    return () if sym is None else (sym.gauge,)
 
 
 #: `restarts=None` of a per-test fit: a dynamic model's swarms per test are this many over
@@ -254,7 +254,7 @@ class TestsProblem(AbstractProblem):
             units=self.model.units, labels=tuple(batch.labels),
             gauge=scale_gauge(self.model),
             exact=None if exact is None else ConditionResidual(exact, blocks=True),
-            linear=tuple(self.model.fixed_params), dynamic=self.model.dynamic)
+            linear=tuple(self.model.basis_params), dynamic=self.model.dynamic)
 
 
 def tests_problem(

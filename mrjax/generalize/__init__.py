@@ -117,7 +117,6 @@ from ._laws import COMMAND_UNITS as COMMAND_UNITS
 from ._laws import CURRENT_TOL as CURRENT_TOL
 from ._laws import LAW_KINDS as LAW_KINDS
 from ._laws import SAT_SCALES as SAT_SCALES
-from ._laws import Z_SCALE_MODELS as Z_SCALE_MODELS
 from ._laws import Law as Law
 from ._laws import canonical_z_scale as canonical_z_scale
 from ._laws import default_degrees as default_degrees

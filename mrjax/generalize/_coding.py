@@ -17,7 +17,7 @@ from jaxtyping import Array, Float
 from ..models import AbstractModel
 from ..objective import gram_terms, rms_from_gram, solve_normal
 from ..pso import AbstractObjective
-from ._laws import Z_SCALE_MODELS, LawSet, law_value, vander
+from ._laws import LawSet, law_value, vander
 from ._rows import Rows
 
 #: Range [1/m] of delta, the inverse yield displacement of a Bouc-Wen-type model on the
@@ -361,12 +361,13 @@ def build_objective(
     """
     names, kinds = model.param_names, layout.kinds
     lin = list(model.linear_params)
-    n_fixed = len(model.fixed_params)
+    n_fixed = len(model.basis_params)
     ls_params = [p for p, n in enumerate(names) if n in lin and kinds[p] != "exp"]
     scales = layout.law_scales
     derived: tuple = ()
     if z_scale:
-        pd, pb, pg = (names.index(k) for k in ("delta", "beta", "gamma"))
+        sym = model.scale_symmetry
+        pd, pb, pg = (names.index(k) for k in (sym.gauge, *sym.balance))
         derived = (int(layout.block(pd)[0]), pd, pb, pg, float(layout.nodes[pd][0]))
     pair_idx: tuple[int, ...] = ()
     if pair:
@@ -406,13 +407,15 @@ def node_box(model: AbstractModel, layout: Layout, lower: np.ndarray, upper: np.
     nodes of a Bouc-Wen-type model in the ranges `DELTA_RANGE` and `Q_RANGE` allow (the
     |z|max = 1 scale)."""
     lo_n, hi_n = np.zeros(layout.n), np.zeros(layout.n)
+    sym = model.scale_symmetry
+    shape = {} if sym is None or not free_shape else dict(zip(
+        (sym.gauge, *sym.balance), (DELTA_RANGE, ((1.0 - Q_RANGE[1]) * DELTA_RANGE[1],
+                                                 DELTA_RANGE[1]), (0.0, Q_RANGE[1] * DELTA_RANGE[1]))))
     for p, n in enumerate(model.param_names):
         b = layout.block(p)
         a, c = float(lower[p]), float(upper[p])
-        if free_shape and model.name in Z_SCALE_MODELS and n in ("delta", "beta", "gamma"):
-            d_hi, q_hi = DELTA_RANGE[1], Q_RANGE[1]
-            a, c = {"delta": DELTA_RANGE, "beta": ((1.0 - q_hi) * d_hi, d_hi),
-                    "gamma": (0.0, q_hi * d_hi)}[n]
+        if n in shape:
+            a, c = shape[n]
         if layout.kinds[p] == "exp":
             a, c = math.log(max(a, 1e-300)), math.log(c)
         lo_n[b], hi_n[b] = a, c

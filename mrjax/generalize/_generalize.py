@@ -19,7 +19,7 @@ from ..models import AbstractModel, resolve_model
 from ._coding import Layout, bounded_box, build_objective, law_values, total_rms_of
 from ._forms import choose_forms, forms_choice
 from ._joint import N_LEVELS, JointOutcome, LawsProblem, solve_laws
-from ._laws import Z_SCALE_MODELS, Law, canonical_z_scale, fit_space, group_currents, nodes
+from ._laws import Law, canonical_z_scale, fit_space, group_currents, nodes
 from ._model import GeneralizedModel, LawUncertainty
 from ._report import LawReport
 from ._rows import make_rows, packed_rows
@@ -93,7 +93,7 @@ def _two_step_stage(result, batch, theta, cur, degrees, laws, weighting, mask):
     m = check_mask(batch, mask)
     used, note, cov = weighting, "", None
     if weighting == "covariance":
-        if model.name in Z_SCALE_MODELS:
+        if model.scale_symmetry is not None:
             note = "the z-scale of Bouc-Wen models makes the covariance singular"
         else:
             cov, note = covariances(result, theta, exp_cols)
@@ -154,8 +154,9 @@ def _joint_problem(model, batch, start: TwoStep, mask, use_view: bool,
     bounds)."""
     nu0, half, box_lo, box_hi = _search_box(model, start)
     names, kinds, sizes = model.param_names, start.layout.kinds, start.layout.sizes
-    z_scale = model.name in Z_SCALE_MODELS
-    shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
+    sym = model.scale_symmetry
+    z_scale = sym is not None
+    shape_ix = [names.index(k) for k in (sym.gauge, *sym.balance)] if z_scale else []
     pair = z_scale and all(sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix)
     obj = build_objective(model, start.layout, nu0, z_scale=z_scale, pair=pair)
     coding = obj.coding

@@ -24,7 +24,7 @@ from ._coding import LOG_FLOOR, Layout, bounded_box, build_objective
 from ._forms import choose_forms
 from ._generalize import law_uncertainty_of, make_generalized
 from ._joint import N_LEVELS, LawsProblem, solve_laws
-from ._laws import Z_SCALE_MODELS, group_currents, nodes
+from ._laws import group_currents, nodes
 from ._model import GeneralizedModel, batch_command
 from ._report import LawReport
 from ._rows import make_rows, packed_rows
@@ -228,10 +228,12 @@ def _problem(model: AbstractModel, batch: Batch, layout: Layout, bounds: Any, tr
     lo_b, hi_b = check_bounds(model, bounds)
     user = _user_bounded(model, bounds)
     names = model.param_names
-    z_scale = model.name in Z_SCALE_MODELS
-    shape_ix = [names.index(k) for k in ("delta", "beta", "gamma")] if z_scale else []
+    sym = model.scale_symmetry
+    z_scale = sym is not None
+    shape = {sym.gauge, *sym.balance} if z_scale else set()
+    shape_ix = [names.index(k) for k in shape]
     pair = z_scale and all(layout.sizes[p] == 1 and kinds[p] == "poly" for p in shape_ix) \
-        and not (user & {"delta", "beta", "gamma"})
+        and not (user & shape)
     logs = tuple(n for p, n in enumerate(names)
                  if kinds[p] == "poly" and lo_b[p] >= 0 and hi_b[p] > 0
                  and hi_b[p] / max(lo_b[p], LOG_FLOOR * hi_b[p]) >= 100)
@@ -242,7 +244,7 @@ def _problem(model: AbstractModel, batch: Batch, layout: Layout, bounds: Any, tr
                           z_scale=z_scale, pair=pair)
     coding = obj.coding
     lm_lo, lm_hi = bounded_box(model, layout, coding, lo_b, hi_b, lag_box,
-                               free_shape=not (user & {"delta", "beta", "gamma"}))
+                               free_shape=not (user & shape))
     D = coding.n_position
     if z_scale:
         notes.append(f"|z|max = 1 at u = {coding.derived[4]:g} {unit}: "

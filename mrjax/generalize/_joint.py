@@ -363,7 +363,7 @@ class LawsProblem(AbstractProblem):
         free = list(self.coding.free)
         lo, hi = node_box(self.model, self.layout, *self.model.bounds)
         names, units = node_names(self.model, self.layout, free)
-        fixed = set(self.model.fixed_params)
+        fixed = set(self.model.basis_params)
         return Likelihood(
             residual=LawResidual(m, self.coding, free=True), theta0=phi0,
             data=jax.tree.map(lambda a: a[None], data), lower=lo[free], upper=hi[free],

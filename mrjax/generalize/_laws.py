@@ -23,24 +23,6 @@ LAW_KINDS: tuple[str, ...] = ("poly", "exp", "sat")
 SAT_SCALES: tuple[float, ...] = (0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.5)
 #: Two currents closer than this [A] count as the same current when grouping conditions.
 CURRENT_TOL = 1e-6
-#: Models whose hysteretic variable z has a redundant scale (normalised to |z|max = 1).
-Z_SCALE_MODELS = ("bouc_wen", "modified_bouc_wen")
-#: Default law degrees per model (see :func:`default_degrees`).
-DEFAULT_DEGREES: dict[str, dict[str, int]] = {
-    "kwok": {"c": 1, "k": 1, "alpha": 2, "beta": 0, "delta": 1, "f0": 1},  # eq 24-29
-    "bingham": {"fc": 2, "c0": 1, "f0": 1},
-    "bouc_wen": {"c": 1, "k": 1, "alpha": 2, "f0": 1, "delta": 0, "beta": 0, "gamma": 0, "n": 0},
-    "modified_bouc_wen": {"c0": 1, "k0": 0, "c1": 1, "k1": 0, "alpha": 2, "delta": 0, "beta": 0,
-                          "gamma": 0, "n": 0, "f0": 0},
-    "dahl": {"c": 1, "k": 1, "alpha": 2, "rho": 0, "f0": 1},
-}
-#: Default law degrees of a model commanded by a *voltage* (Spencer et al. 1997: c0, c1 and
-#: alpha linear in the filtered voltage u, every other parameter constant); models not listed
-#: use `DEFAULT_DEGREES` in volts as well.
-VOLTAGE_DEGREES: dict[str, dict[str, int]] = {
-    "modified_bouc_wen": {"c0": 1, "k0": 0, "c1": 1, "k1": 0, "alpha": 1, "delta": 0, "beta": 0,
-                          "gamma": 0, "n": 0, "f0": 0},
-}
 #: Units a law's argument (the command u) can have: coil current or command voltage.
 COMMAND_UNITS: tuple[str, ...] = ("A", "V")
 #: Row length of the packed samples of a static model's joint fit (see `_joint_data`).
@@ -237,7 +219,7 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *
         `mrjax.models.Parameter(..., degree=0)`), else degree 1, and 2 for `alpha`.
     - With `unit="V"` (laws of a command voltage) the modified Bouc-Wen takes Spencer's 1997
         voltage laws exactly: c0, c1 and alpha linear, every other parameter constant
-        (`VOLTAGE_DEGREES`); the other models keep the table above.
+        (the model's `voltage_law_degrees`); the other models keep the table above.
 
     With `n_currents` given (the number of distinct command levels), degrees are capped at
     `n_currents - 1`.
@@ -245,15 +227,10 @@ def default_degrees(model: str | AbstractModel, n_currents: int | None = None, *
     model = get(model)
     if unit not in COMMAND_UNITS:
         raise InputError(f"command unit must be one of {list(COMMAND_UNITS)}, got {unit!r}")
-    if unit == "V" and model.name in VOLTAGE_DEGREES and set(
-            VOLTAGE_DEGREES[model.name]) == set(model.param_names):
-        deg = dict(VOLTAGE_DEGREES[model.name])
-    elif model.name in DEFAULT_DEGREES and set(DEFAULT_DEGREES[model.name]) == set(
-            model.param_names):
-        deg = dict(DEFAULT_DEGREES[model.name])
-    else:
-        deg = {n: (2 if n == "alpha" else 1) for n in model.param_names}
-        deg.update(model.law_degrees)  # what a declared model says of its own parameters
+    deg = {n: (2 if n == "alpha" else 1) for n in model.param_names}
+    deg.update(model.law_degrees)  # what the model says of its own parameters
+    if unit == "V":
+        deg.update(model.voltage_law_degrees)
     if n_currents is not None:
         deg = {n: min(d, max(int(n_currents) - 1, 0)) for n, d in deg.items()}
     return deg
@@ -267,21 +244,10 @@ def canonical_z_scale(model: AbstractModel, theta: ArrayLike) -> np.ndarray:
     $\\beta, \\gamma \\to s^{1-n}\\beta, s^{1-n}\\gamma$, $\\alpha \\to \\alpha/s$. Rows with
     $\\beta + \\gamma \\le 0$ or $\\delta \\le 0$ are left as they are.
     """
-    th = np.array(theta, dtype=float, copy=True)
-    if model.name not in Z_SCALE_MODELS:
-        return th
-    ix = model.param_names.index
-    d, b, g, n = (th[..., ix(k)] for k in ("delta", "beta", "gamma", "n"))
-    with np.errstate(all="ignore"):
-        ratio = d / (b + g)
-        ok = np.isfinite(ratio) & (ratio > 0) & ((b + g) > 0) & (n > 0)
-        s = np.where(ok, np.where(ok, ratio, 1.0) ** (-1.0 / np.where(ok, n, 1.0)), 1.0)
-        sb = s ** (1.0 - n)
-    th[..., ix("delta")] = s * d
-    th[..., ix("beta")] = sb * b
-    th[..., ix("gamma")] = sb * g
-    th[..., ix("alpha")] = th[..., ix("alpha")] / s
-    return th
+    sym = model.scale_symmetry
+    if sym is None:
+        return np.array(theta, dtype=float, copy=True)
+    return sym.canonical(theta, model.param_names)
 
 
 def group_currents(cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

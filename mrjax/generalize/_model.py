@@ -26,7 +26,6 @@ from ..models import AbstractModel, from_source, get, resolve_model, source_of
 from ..objective import masked_rms, nrmse
 from ._laws import (
     COMMAND_UNITS,
-    Z_SCALE_MODELS,
     Law,
     LawSet,
     default_degrees,
@@ -214,17 +213,15 @@ class GeneralizedModel:
         models are returned unchanged. The force is unchanged where delta, beta, gamma and n
         are constant (their default laws); the map is one global scale of z
         (`canonical_z_scale`): alpha / s, delta * s, beta and gamma * s^(1 - n)."""
-        if self.model.name not in Z_SCALE_MODELS:
+        sym = self.model.scale_symmetry
+        if sym is None:
             return self
         u = self.current_range[0] if reference is None else float(reference)
         th = np.asarray(self.params_at(u), float)
-        ix = self.param_names.index
-        d, b, g, n = (th[ix(k)] for k in ("delta", "beta", "gamma", "n"))
-        if not (d > 0 and b + g > 0 and n > 0):
+        if not sym.has_canonical(th, self.param_names):
             return self
-        s_ = (d / (b + g)) ** (-1.0 / n)
-        scale = {"alpha": 1.0 / s_, "delta": s_, "beta": s_ ** (1.0 - n),
-                 "gamma": s_ ** (1.0 - n)}
+        scale = sym.factors(th, self.param_names, sym.canonical_scale(th, self.param_names))
+        scale = {n: f for n, f in scale.items() if n in self.laws}
         laws = dict(self.laws)
         for name, f in scale.items():
             law = laws[name]

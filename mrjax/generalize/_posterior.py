@@ -375,10 +375,10 @@ def law_posterior_plan(gm: GeneralizedModel, batch: Batch, likelihood_data: str 
     model = gm.model
     cur = _constant_currents(batch)
     layout = _layout(gm)
-    z_scale = gm.model.scale_symmetry is not None if hasattr(gm.model, "scale_symmetry") else \
-        model.name in ("bouc_wen", "modified_bouc_wen")
+    z_scale = model.scale_symmetry is not None
     if z_scale:  # the joint fit's z-scale: delta = beta + gamma at u0
-        gm = gm.with_canonical_z(layout.nodes[model.param_names.index("delta")][0])
+        gm = gm.with_canonical_z(layout.nodes[model.param_names.index(
+            model.scale_symmetry.gauge)][0])
     coef0 = np.concatenate([np.asarray(gm.laws[n].coefficients, float)
                             for n in gm.param_names])
     obj = build_objective(model, layout, layout.V @ coef0, z_scale=z_scale)
