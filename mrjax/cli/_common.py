@@ -22,6 +22,25 @@ from ..models import AbstractModel, check_bounds
 from ._parse import DATA_FLAGS, say
 
 
+def parse_fixed(items: list[str] | None) -> dict[str, float] | None:
+    """`--fixed NAME=VALUE` options as `{name: value}` [SI] for `mrjax.models.fix`, or None."""
+    if not items:
+        return None
+    out: dict[str, float] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not (eq and name):
+            raise InputError(f"--fixed {item!r}: expected NAME=VALUE, e.g. delta=1")
+        if name in out:
+            raise InputError(f"--fixed: parameter {name!r} given twice")
+        try:
+            out[name] = float(text)
+        except ValueError:
+            raise InputError(f"--fixed {item!r}: VALUE is not a number: {text.strip()!r}") from None
+    return out
+
+
 def parse_bounds(items: list[str] | None, model: AbstractModel) -> tuple[dict, dict] | None:
     """`--bounds NAME=LO:HI` options (an empty LO or HI keeps the default) as checked
     `(lower, upper)` dicts for `mrjax.fit`, or None."""

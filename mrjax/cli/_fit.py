@@ -24,6 +24,7 @@ from ._common import (
     force_figures,
     load_tests,
     parse_bounds,
+    parse_fixed,
     say_estimates,
     use_agg,
 )
@@ -80,7 +81,7 @@ def fit_settings(args: argparse.Namespace) -> tuple[Swarm | None, Polish | None]
 def run(args: argparse.Namespace, out: OutputDir) -> int:
     """Run `mrjax fit` with parsed arguments into the claimed directory `out`; returns the exit
     code."""
-    model = get(args.model)
+    model = get(args.model, fixed=parse_fixed(args.fixed))
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "
                          "not both")

@@ -85,6 +85,9 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("--bounds", action="append", metavar="NAME=LO:HI",
                    help="search bounds of one parameter in SI units, e.g. c=500:5000 (repeatable; "
                    "an empty LO or HI keeps the default; see `mrjax models`)")
+    p.add_argument("--fixed", action="append", metavar="NAME=VALUE",
+                   help="hold one parameter at a value in SI units, e.g. delta=1 (repeatable): "
+                   "every stage, the laws and the posterior keep it; fit.json records it")
     p.add_argument("--generalize", choices=("two-step", "joint"),
                    help="also fit current-dependent laws of the parameters (needed by "
                    "`mrjax predict`); records with a command voltage or a time-varying current "
