@@ -5,7 +5,6 @@ both posteriors; `mrjax fit --fixed` records it in fit.json and `mrjax predict` 
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
