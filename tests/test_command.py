@@ -41,9 +41,9 @@ def test_spencer_1997_known_answer():
     truth = spencer_1997()
     rec = command_record(truth, duration=3.0, sample_rate=1000.0, seed=1)
     val = command_record(truth, duration=3.0, sample_rate=1000.0, seed=2)
-    gm = identify(rec, "modified_bouc_wen", lag="fit", seed=0,
-                  pso_params=PSOParams(window=25, min_generations=100))
-    assert gm.command_unit == "V" and gm.info["lag_fitted"]
+    gm = identify(rec, "modified_bouc_wen", lag="fit", key=0,
+                  swarm=mrjax.Swarm(params=PSOParams(window=25, min_generations=100)))
+    assert gm.command_unit == "V" and gm.report.lag_fitted
     tc = truth.with_canonical_z()
     unc = gm.uncertainty
     loose = gm.loosely_determined()
@@ -75,7 +75,8 @@ def test_mixed_campaign_predicts_a_random_record():
     rec = command_record(truth, duration=3.0, sample_rate=1000.0, seed=1)
     val = command_record(truth, duration=3.0, sample_rate=1000.0, seed=2)
     sines = [sine_record(truth, lv, seed=10 + k) for k, lv in enumerate((0.0, 1.0, 2.0))]
-    gm = identify(sines + [rec], "modified_bouc_wen", lag="fit", seed=0, uncertainty=False)
+    gm = identify(sines + [rec], "modified_bouc_wen", lag="fit", key=0,
+                  polish=mrjax.Polish(uncertainty=False))
     vb = make_batch([val])
     nr, nr_true = gm.evaluate(vb)["nrmse"][0], truth.evaluate(vb)["nrmse"][0]
     assert abs(nr - nr_true) <= 0.005

@@ -22,7 +22,7 @@ from helpers import MODEL_NAMES, TRUE_PARAMS, outputs
 import mrjax
 import mrjax.report
 from mrjax import InputError, cli
-from mrjax.comparison import information_criteria, n_free_parameters, plan_validation
+from mrjax.comparison import HeldOut, information_criteria, n_free_parameters, plan_validation
 from mrjax.data import Condition, make_batch, paper_parameters, simulate
 from mrjax.generalize import generalize
 
@@ -166,7 +166,7 @@ NOISE = 5.0
 #: Swarm only (the polish would add about a minute of compilation for the three ODE models):
 #: the separable swarm alone already ends within a few percent of the noise floor except for
 #: the modified Bouc-Wen model, which still wins on its own data by a wide margin.
-FAST = dict(method="pso", uncertainty=False, n_particles=40, max_generations=150)
+FAST = dict(swarm=mrjax.Swarm(n_particles=40, max_generations=150), polish=None)
 #: (generating model, nesting model): the second contains the first (Dahl is Bouc-Wen with
 #: n = 1, beta = 0, delta = gamma = rho; Bingham is the tanh model's limit beta -> inf,
 #: delta = 0, k = 0). On the first one's data both fit equally well, so only the parameter
@@ -183,7 +183,7 @@ def known():
                                   sample_rate=400.0, cycles=1.5, noise=NOISE,
                                   seed=100 + len(conds), label=f"{g}_{j}"))
     batch = make_batch(conds)
-    res = mrjax.compare(batch, models=MODEL_NAMES, generalize_methods=(), seed=0, **FAST)
+    res = mrjax.compare(batch, models=MODEL_NAMES, held_out=None, key=0, **FAST)
     return batch, res
 
 
@@ -258,7 +258,8 @@ def test_compare_result_files(known):
 # Held-out validation (tanh model only)
 
 
-HOLD = dict(method="pso", n_particles=20, max_generations=40)
+HOLD = dict(swarm=mrjax.Swarm(n_particles=20, max_generations=40), polish=None)
+HALF = HeldOut(hold_out={"current": [0.5]})
 HOLD_CURRENTS = (0.0, 0.5, 1.0, 2.0)
 
 
@@ -275,7 +276,7 @@ def grid():
 
 @pytest.fixture(scope="module")
 def held(grid):
-    return mrjax.compare(grid, models="kwok", hold_out={"current": [0.5]}, seed=0, **HOLD)
+    return mrjax.compare(grid, models="kwok", held_out=HALF, key=0, **HOLD)
 
 
 def test_hold_out_reuses_the_per_test_fits(grid, held):
@@ -285,7 +286,7 @@ def test_hold_out_reuses_the_per_test_fits(grid, held):
     assert held.holdout_labels == tuple(grid.labels[i] for i in test)
     assert held.fold_train == (tuple(grid.labels[i] for i in train),)
     fit = held.fits["kwok"]
-    gm = generalize(fit.subset(train), grid.subset(train), method="two-step", seed=0)
+    gm = generalize(fit.subset(train), grid.subset(train), method="two-step", key=0)
     ev = gm.evaluate(grid.subset(test))
     g = held.methods.index("two-step")
     np.testing.assert_allclose(held.holdout_nrmse[g, 0], ev["nrmse"], rtol=1e-9)
@@ -297,7 +298,7 @@ def test_hold_out_reuses_the_per_test_fits(grid, held):
 
 
 def test_same_seed_same_result(grid, held):
-    again = mrjax.compare(grid, models="kwok", hold_out={"current": [0.5]}, seed=0, **HOLD)
+    again = mrjax.compare(grid, models="kwok", held_out=HALF, key=0, **HOLD)
     np.testing.assert_array_equal(again.bic, held.bic)
     np.testing.assert_array_equal(again.holdout_rms, held.holdout_rms)
 
@@ -305,16 +306,16 @@ def test_same_seed_same_result(grid, held):
 def test_validate_files_and_k_folds(grid, held):
     """Other tests as validation (laws from all tests), and K folds: every test held out once.
     The fits are those of `held` (same data and options: no new compilation)."""
-    val = mrjax.compare(grid, models="kwok", validate=grid.subset([2, 3]),
-                        generalize_methods="two-step", seed=0, **HOLD)
+    val = mrjax.compare(grid, models="kwok", key=0, **HOLD,
+                        held_out=HeldOut(data=grid.subset([2, 3]), methods="two-step"))
     assert val.scheme == "validate" and np.all(val.holdout_index == -1)
     assert val.holdout_labels == grid.labels[2:4] and val.fold_train == (grid.labels,)
     np.testing.assert_array_equal(val.bic, held.bic)
     rows = list(csv.DictReader(io.StringIO(val.to_csv())))
     assert [r["role"] for r in rows].count("validation") == 2
     assert val.subset([0, 1]).holdout_labels == ()
-    kf = mrjax.compare(grid, models="kwok", folds=2, generalize_methods="two-step", seed=0,
-                       **HOLD)
+    kf = mrjax.compare(grid, models="kwok", held_out=HeldOut(folds=2, methods="two-step"),
+                       key=0, **HOLD)
     assert kf.scheme == "folds" and sorted(kf.holdout_labels) == sorted(grid.labels)
     assert sorted(kf.holdout_index.tolist()) == list(range(grid.n_conditions))
     assert np.all(np.isfinite(kf.holdout_nrmse))
@@ -331,11 +332,13 @@ def test_figures(held):
 @pytest.mark.parametrize("kwargs, needle", [
     (dict(models="kwok,nope"), "unknown model 'nope'"),
     (dict(models="kwok,tanh"), "listed twice"),
-    (dict(models="kwok", hold_out={"current": [3.0]}), "hold-out set is empty at 3 A"),
-    (dict(models="kwok", key=0), "seed="),
+    (dict(models="kwok", held_out=HeldOut(hold_out={"current": [3.0]})),
+     "hold-out set is empty at 3 A"),
+    (dict(models="kwok", key=-1), "non-negative integer seed"),
     (dict(models="kwok", bounds={"dahl": None}), "not compared"),
-    (dict(models="kwok", polish_iterations=5), "unknown fit option 'polish_iterations'"),
-    (dict(models="kwok", generalize_methods="two-step,three-step"), "'three-step'"),
+    (dict(models="kwok", polish="lm"), "polish must be a mrjax.Polish"),
+    (dict(models="kwok", held_out={"current": [0.5]}), "held_out must be a"),
+    (dict(models="kwok", held_out=HeldOut(methods="two-step,three-step")), "'three-step'"),
 ])
 def test_compare_bad_input(grid, kwargs, needle):
     with pytest.raises(InputError, match=needle):
@@ -436,8 +439,8 @@ def test_cli_usage_errors(tmp_path):
 def test_utfsm_static_models_hold_out(utfsm):
     files = sorted(Path(utfsm).glob("2mm5Hz*A.txt"))  # the five shortest records
     res = mrjax.compare([str(f) for f in files], models="bingham,kwok",
-                        hold_out={"current": [0.25, 0.75]}, generalize_methods="two-step",
-                        method="pso", uncertainty=False, max_generations=60)
+                        held_out=HeldOut(hold_out={"current": [0.25, 0.75]}, methods="two-step"),
+                        swarm=mrjax.Swarm(max_generations=60), polish=None)
     print("\n" + res.table())
     assert res.ranking == ("kwok", "bingham")
     assert res.wins[res.models.index("kwok")] == res.n_tests

@@ -46,7 +46,7 @@ def _errors(gm: GeneralizedModel) -> dict[str, np.ndarray]:
 def grid():
     batch = data.paper_grid()
     t = time.perf_counter()
-    res = mrjax.fit("kwok", batch, seed=0)
+    res = mrjax.fit("kwok", batch, key=0)
     print(f"\nper-condition fit of the paper grid: {time.perf_counter() - t:.1f} s")
     return batch, res
 
@@ -58,7 +58,7 @@ def generalized(grid):
     for method in ("two-step", "joint"):
         t = time.perf_counter()
         out[method] = generalize(res, batch, method=method)
-        print(f"\n{method}: {time.perf_counter() - t:.1f} s, {out[method].info}")
+        print(f"\n{method}: {time.perf_counter() - t:.1f} s, {out[method].report}")
     return out
 
 
@@ -98,7 +98,7 @@ def test_joint_not_worse_than_two_step(grid, generalized):
     assert joint.total_rms <= two.total_rms
     # the joint fit is the least-squares optimum of the laws: at or below the truth's RMS
     assert joint.total_rms <= truth * (1 + 1e-9)
-    assert two.info["two_step_total_rms_N"] == pytest.approx(two.total_rms)
+    assert two.report.two_step_rms == pytest.approx(two.total_rms)
     for gm in (two, joint):
         ev = gm.evaluate(batch)
         assert ev["total_rms"] == pytest.approx(gm.total_rms, rel=1e-9)
@@ -285,7 +285,7 @@ def _held_out(utfsm, model: str, method: str, fit_kw=None, gen_kw=None):
     train = data.make_batch([c for c in conds if c.current in (0.0, 0.5, 1.0)])
     test = data.make_batch([c for c in conds if c.current in (0.25, 0.75)])
     t = time.perf_counter()
-    res = mrjax.fit(model, train, seed=0, **(fit_kw or {}))
+    res = mrjax.fit(model, train, key=0, **(fit_kw or {}))
     t_fit = time.perf_counter() - t
     t = time.perf_counter()
     gm = generalize(res, train, method=method, **(gen_kw or {}))
@@ -314,7 +314,7 @@ def test_utfsm_held_out_currents_tanh(utfsm):
 @needs_slow
 def test_utfsm_held_out_currents_tanh_joint(utfsm):
     _, gm, ev = _held_out(utfsm, "kwok", "joint")  # measured: 13.9 %
-    assert gm.total_rms <= gm.info["two_step_total_rms_N"]
+    assert gm.total_rms <= gm.report.two_step_rms
     assert ev["median_nrmse"] <= 0.15
 
 
@@ -327,7 +327,8 @@ def test_utfsm_held_out_currents_modified_bouc_wen(utfsm):
     scatter wildly between motions (many on their bounds), so the two-step averages are useless
     here (55 % held-out); the joint fit reaches 11.0 % (measured with these settings)."""
     _, gm, ev = _held_out(utfsm, "modified_bouc_wen", "joint",
-                          fit_kw=dict(method="pso", uncertainty=False, max_generations=80),
-                          gen_kw=dict(max_generations=30, polish_steps=20))
-    assert gm.total_rms <= gm.info["two_step_total_rms_N"]
+                          fit_kw=dict(swarm=mrjax.Swarm(max_generations=80), polish=None),
+                          gen_kw=dict(swarm=mrjax.Swarm(max_generations=30),
+                                      polish=mrjax.Polish(max_steps=20)))
+    assert gm.total_rms <= gm.report.two_step_rms
     assert ev["median_nrmse"] <= 0.13

@@ -100,7 +100,7 @@ def test_two_processes_equal_one(tmp_path):
 
     batch = mrjax.data.paper_grid(currents=(0.0, 0.5, 1.0, 2.0), motions=((1.0, 0.008),),
                                   cycles=1, sample_rate=500.0)
-    one = mrjax.fit("kwok", batch, method="pso", key=jax.random.key(0), uncertainty=False)
+    one = mrjax.fit("kwok", batch, polish=None, key=jax.random.key(0))
     theta = np.asarray(docs[0]["theta"])
     # The same swarms to rounding: XLA tiles the per-condition sums for the local shape (2
     # conditions per process here), as on several devices of one process (test_parallel.py),

@@ -1,4 +1,5 @@
-"""Sharding the condition axis over devices (`mrjax.parallel`, `mrjax.fit(devices=...)`).
+"""Sharding the condition axis over devices (`mrjax.parallel`,
+`mrjax.fit(chunks=mrjax.Chunks(devices=...))`).
 
 The multi-device check runs in a subprocess with `--xla_force_host_platform_device_count=2`:
 the pytest process has already started JAX with one CPU device.
@@ -45,7 +46,7 @@ def test_pad_and_unpad(small):
     np.testing.assert_array_equal(np.asarray(m)[:3], np.asarray(small.mask))
     same, _, n = pad_conditions(small, None, 3)
     assert same is small and n == 3
-    res = mrjax.fit("kwok", b, method="pso", generations=3, uncertainty=False)
+    res = mrjax.fit("kwok", b, swarm=mrjax.Swarm(generations=3), polish=None)
     cut = unpad(res, 3)
     assert cut.n_conditions == 3 and cut.theta.shape == (3, 6) and cut.history.shape[0] == 3
     assert cut.labels == small.labels and cut.timings == res.timings
@@ -55,9 +56,10 @@ def test_single_device_fit_unchanged(small):
     """devices=1 places the batch on one device and gives the same numbers as no devices."""
     b, m = shard_batch(small, None, 1)
     assert b.n_conditions == small.n_conditions and m.shape == small.mask.shape
-    kw = dict(method="pso+lm", generations=5, polish_steps=20, uncertainty=False, seed=1)
+    kw = dict(swarm=mrjax.Swarm(generations=5),
+              polish=mrjax.Polish(max_steps=20, uncertainty=False), key=1)
     a = mrjax.fit("kwok", small, **kw)
-    c = mrjax.fit("kwok", small, devices=1, **kw)
+    c = mrjax.fit("kwok", small, chunks=mrjax.Chunks(devices=1), **kw)
     np.testing.assert_array_equal(a.theta, c.theta)
     np.testing.assert_array_equal(a.rms, c.rms)
 
@@ -72,11 +74,11 @@ _SCRIPT = textwrap.dedent("""
     batch = paper_grid(currents=(0.0, 1.0, 2.0), motions=((1.0, 0.008),), cycles=1,
                        sample_rate=500.0)
     out = {}
-    for name, kw in (("pso+lm", dict(method="pso+lm", polish_steps=20, uncertainty=False)),
-                     ("pso-full", dict(method="pso", swarm_mode="full", generations=8,
-                                       uncertainty=False))):
-        one = mrjax.fit("kwok", batch, seed=3, **kw)
-        two = mrjax.fit("kwok", batch, seed=3, devices="all", **kw)
+    for name, kw in (("pso+lm", dict(polish=mrjax.Polish(max_steps=20, uncertainty=False))),
+                     ("pso-full", dict(swarm=mrjax.Swarm(mode="full", generations=8),
+                                       polish=None))):
+        one = mrjax.fit("kwok", batch, key=3, **kw)
+        two = mrjax.fit("kwok", batch, key=3, chunks=mrjax.Chunks(devices="all"), **kw)
         r = {"C": [one.n_conditions, two.n_conditions], "labels_equal": one.labels == two.labels}
         for f in ("theta", "rms", "nrmse", "generations", "stopped_by_criterion", "n_samples",
                   "history", "pso_rms"):
