@@ -31,7 +31,7 @@ enable_compilation_cache()  # as the `mrjax` command does ($MRJAX_CACHE_DIR; off
 t1 = time.perf_counter()
 batch = as_batch(sys.argv[1])
 t2 = time.perf_counter()
-r = mrjax.fit("kwok", batch, seed=0)
+r = mrjax.fit("kwok", batch, key=0)
 t3 = time.perf_counter()
 save(r, sys.argv[2])
 t4 = time.perf_counter()

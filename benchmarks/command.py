@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso):
     """The known answer and the mixed campaign; fills `out`, returns the identified laws."""
+    from mrjax import Swarm
     from mrjax.data import make_batch
     from mrjax.generalize import identify, sine_record
 
@@ -119,7 +120,7 @@ def _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso):
     dur, fs = a.duration, a.rate
     log(f"known answer: identify from one {dur:g} s, {fs:g} Hz record...")
     t0 = time.perf_counter()
-    gm = identify(rec, "modified_bouc_wen", lag="fit", seed=0, pso_params=pso)
+    gm = identify(rec, "modified_bouc_wen", lag="fit", key=0, swarm=Swarm(params=pso))
     wall = time.perf_counter() - t0
     unc = gm.uncertainty
     table = _coef_table(gm, truth, unc.stderr if unc else None)
@@ -127,14 +128,14 @@ def _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso):
     nr_val = float(gm.evaluate(vb)["nrmse"][0])
     nr_fit = float(gm.evaluate(make_batch([rec]))["nrmse"][0])
     out["known_answer"] = {
-        "wall_s": wall, "timings_s": gm.info["timings"], "table": table,
+        "wall_s": wall, "timings_s": gm.report.timings, "table": table,
         "eta_true": truth.lag, "eta": gm.lag,
         "eta_stderr": unc.lag_stderr if unc else None, "eta_rel_err_pct": 100 * eta_err,
         "all_ok": all(r["ok"] for r in table) and eta_err <= 0.10,
         "nrmse_fit_pct": 100 * nr_fit, "nrmse_fit_true_pct": 100 * nr_true_fit,
         "nrmse_val_pct": 100 * nr_val, "nrmse_val_true_pct": 100 * nr_true,
         "val_gap_points": 100 * (nr_val - nr_true),
-        "polish_steps": gm.info["polish_steps"], "generalized": gm.to_dict(),
+        "polish_steps": list(gm.report.polish_steps), "generalized": gm.to_dict(),
     }
     log(f"  {wall:.1f} s, eta {gm.lag:.1f}, validation NRMSE {100 * nr_val:.3f} % "
         f"(true {100 * nr_true:.3f} %)")
@@ -143,7 +144,8 @@ def _identify_all(a, out, truth, rec, val, vb, nr_true, nr_true_fit, pso):
         log("mixed campaign: sine tests at 0, 1, 2 V + the random record...")
         sines = [sine_record(truth, lv, seed=10 + k) for k, lv in enumerate((0.0, 1.0, 2.0))]
         t0 = time.perf_counter()
-        gm_mix = identify(sines + [rec], "modified_bouc_wen", lag="fit", seed=0, pso_params=pso)
+        gm_mix = identify(sines + [rec], "modified_bouc_wen", lag="fit", key=0,
+                          swarm=Swarm(params=pso))
         wall_mix = time.perf_counter() - t0
         nr_mix = float(gm_mix.evaluate(vb)["nrmse"][0])
         out["mixed"] = {"wall_s": wall_mix, "eta": gm_mix.lag, "nrmse_val_pct": 100 * nr_mix,

@@ -19,8 +19,9 @@ process), cold (`MRJAX_CACHE_DIR=off`):
     excluded);
 - `check`: the batch read from the file equals, bit for bit, the same tests built in Python;
 - `fit`: `mrjax fit FILE --model kwok --method pso --memory SIZE --no-plots`;
-- `pyfit`: `mrjax.fit("kwok", batch, method="pso", max_memory=SIZE)` on the tests built in
-    Python, and whether its `fit.csv` is byte for byte that of each file's `mrjax fit`.
+- `pyfit`: `mrjax.fit("kwok", batch, polish=None, chunks=mrjax.Chunks(max_memory=SIZE))` on
+    the tests built in Python, and whether its `fit.csv` is byte for byte that of each file's
+    `mrjax fit`.
 
 Rows go to `benchmarks/fleet.json` (replacing those of the same test count and step).
 """
@@ -124,7 +125,7 @@ for f in ("t", "x", "xdot", "force", "dt", "command", "mask", "current", "freque
 print("identical batch")
 if {fit}:
     del got
-    res = mrjax.fit("kwok", ref, method="pso", seed=0, max_memory={memory!r})
+    res = mrjax.fit("kwok", ref, polish=None, key=0, chunks=mrjax.Chunks(max_memory={memory!r}))
     open({out!r}, "w").write(res.to_csv())
 """
 

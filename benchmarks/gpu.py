@@ -56,13 +56,13 @@ def main(data: str, out: str, *sections: str) -> None:
 
     if "fit" in sections:
         for name in ("kwok", "modified_bouc_wen"):
-            timed(f"fit_{name}_cold_s", lambda: mrjax.fit(name, batch, seed=0))
-            r = timed(f"fit_{name}_warm_s", lambda: mrjax.fit(name, batch, seed=0))
+            timed(f"fit_{name}_cold_s", lambda: mrjax.fit(name, batch, key=0))
+            r = timed(f"fit_{name}_warm_s", lambda: mrjax.fit(name, batch, key=0))
             doc[f"fit_{name}_median_nrmse_pct"] = float(100 * sorted(r.nrmse)[len(r.nrmse) // 2])
     if "tanh" in sections:
-        res = mrjax.fit("kwok", batch, seed=0)
+        res = mrjax.fit("kwok", batch, key=0)
         post = timed("posterior_kwok_30_tests_s",
-                     lambda: mrjax.posterior(res, batch, seed=0, noise="iid"))
+                     lambda: mrjax.posterior(res, batch, key=0, noise="iid"))
         doc["posterior_kwok"] = _diag(post)
         save()
     if "cost" in sections or "mbw" in sections:
@@ -78,7 +78,7 @@ def main(data: str, out: str, *sections: str) -> None:
         sampler = mrjax.bayes.Sampler(draws=MBW_STEPS, warmup=MBW_STEPS, chains=4)
         doc["posterior_mbw_steps"] = f"4 x ({MBW_STEPS} + {MBW_STEPS})"
         post = timed("posterior_mbw_one_test_s",
-                      lambda: mrjax.posterior(res, one, seed=0, noise="ar1", sampler=sampler))
+                      lambda: mrjax.posterior(res, one, key=0, noise="ar1", sampler=sampler))
         doc["posterior_mbw"] = _diag(post)
         doc["posterior_mbw_timings_s"] = dict(post.posterior.timings)
         save()

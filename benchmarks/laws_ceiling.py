@@ -37,7 +37,7 @@ def main(model: str = "kwok") -> None:
     train = [f for f in files if f.split("Hz")[1] in TRAIN]
     test = [f for f in files if f not in train]
     tr, te = mrjax.data.load_batch(train), mrjax.data.load_batch(test)
-    r = mrjax.fit(model, tr, seed=0, progress=False)
+    r = mrjax.fit(model, tr, key=0, progress=False)
     fmax = np.max(np.where(tr.mask, np.abs(tr.force), 0), axis=1)
     w = 1.0 / (fmax * np.sqrt(np.asarray(tr.mask).sum(1)))
     variants = [("auto", {}), ("quadratic", dict(laws="fixed", degrees=2)),
@@ -45,7 +45,7 @@ def main(model: str = "kwok") -> None:
                 ("two-step auto", dict(method="two-step"))]
     for label, kw in variants:
         t0 = time.perf_counter()
-        gm = generalize(r, tr, seed=0, **{"method": "joint", **kw})
+        gm = generalize(r, tr, key=0, **{"method": "joint", **kw})
         names = gm.param_names
         sizes = [len(gm.laws[n].coefficients) for n in names]
         c0 = np.concatenate([np.asarray(gm.laws[n].coefficients, float) for n in names])

@@ -14,11 +14,16 @@ from mrjax.data import paper_grid
 from ._common import log
 from ._work import SIGMA, ode_grid
 
+#: The settings of each method (`FitResult.method`): the swarm alone, swarm then polish, the
+#: polish alone.
+METHODS = {"pso": dict(polish=None), "pso+lm": dict(polish=mrjax.Polish(uncertainty=False)),
+           "lm": dict(swarm=None, polish=mrjax.Polish(uncertainty=False))}
+
 
 def _one_method(cfg, name: str, batch, method: str) -> dict:
-    """`mrjax.fit(name, batch, method=method)`: first (compiling) call, warm repeats, quality
-    and, with a swarm, its median convergence curve against time."""
-    kw = dict(method=method, seed=0, uncertainty=False)
+    """`mrjax.fit(name, batch, **METHODS[method])`: first (compiling) call, warm repeats,
+    quality and, with a swarm, its median convergence curve against time."""
+    kw = dict(METHODS[method], key=0)
     t0 = time.perf_counter()
     mrjax.fit(name, batch, **kw)
     first = time.perf_counter() - t0

@@ -115,7 +115,7 @@ def cached_fit(model: str):
         res = mrjax.FitResult.from_state(json.loads(path.read_text()), mrjax.models.get(model))
         return res, batch, 0.0
     t0 = time.perf_counter()
-    res = mrjax.fit(model, batch, seed=0)
+    res = mrjax.fit(model, batch, key=0)
     path.write_text(json.dumps(res.to_state()))
     return res, batch, time.perf_counter() - t0
 
@@ -133,9 +133,10 @@ def run_case(a: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        tp = mrjax.posterior(res, batch, draws=a.draws, chains=a.chains,
-                             warmup=a.warmup or mrjax.bayes.Sampler().warmup,
-                             noise=a.noise, likelihood_data=a.data, seed=0)
+        sampler = mrjax.Sampler(draws=a.draws, chains=a.chains,
+                                warmup=a.warmup or mrjax.Sampler().warmup)
+        tp = mrjax.posterior(res, batch, sampler=sampler, noise=a.noise,
+                             likelihood_data=a.data, key=0)
     wall = time.perf_counter() - t0
     post = tp.posterior
     iv = {n: post.interval(n).tolist() for n in post.names}
@@ -321,12 +322,12 @@ def calibration(records: int, draws: int, models: list[str]) -> list[dict[str, A
         for data_noise, fit_noise in (("iid", "iid"), ("ar1", "ar1"), ("ar1", "iid")):
             batch, truth = simulate_set(model, records, data_noise, seed=1)
             t0 = time.perf_counter()
-            res = mrjax.fit(model, batch, seed=0)
+            res = mrjax.fit(model, batch, key=0)
             t_fit = time.perf_counter() - t0
             t0 = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                tp = mrjax.posterior(res, batch, sampler=sampler, noise=fit_noise, seed=0)
+                tp = mrjax.posterior(res, batch, sampler=sampler, noise=fit_noise, key=0)
             t_post = time.perf_counter() - t0
             post = tp.posterior
             cov = np.array([[lo <= t <= hi for (lo, hi), t in

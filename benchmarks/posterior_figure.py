@@ -57,9 +57,9 @@ def tanh_grid() -> dict[str, Any]:
 
     currents = (0.0, 0.25, 0.5, 0.75, 1.0, 2.0)
     batch = paper_grid().subset([6 * i + 5 for i in range(len(currents))])  # (2 Hz, 8 mm)
-    res = mrjax.fit("kwok", batch, seed=0)
+    res = mrjax.fit("kwok", batch, key=0)
     t0 = time.perf_counter()
-    tp = mrjax.posterior(res, batch, noise="iid", seed=0)
+    tp = mrjax.posterior(res, batch, noise="iid", key=0)
     out = _rows(res, tp, paper_parameters(np.asarray(currents)))
     out.update(current=list(currents), posterior_s=time.perf_counter() - t0,
                run="4 chains x (1000 + 1000), iid noise, record")
@@ -77,7 +77,7 @@ def tanh_utfsm() -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        tp = mrjax.posterior(res, batch, noise="ar1", seed=0)
+        tp = mrjax.posterior(res, batch, noise="ar1", key=0)
     out = _rows(res, tp)
     out.update(current=[float(c) for c in np.asarray(batch.current, float)],
                posterior_s=time.perf_counter() - t0,
@@ -100,7 +100,7 @@ def mbw_utfsm(chains: int, draws: int, max_doublings: int) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        tp = mrjax.posterior(res, batch, noise="ar1", sampler=sampler, seed=0)
+        tp = mrjax.posterior(res, batch, noise="ar1", sampler=sampler, key=0)
     out = _rows(res, tp)
     out.update(current=[float(c) for c in np.asarray(batch.current, float)],
                posterior_s=time.perf_counter() - t0,

@@ -10,7 +10,7 @@ innovations' log level, `v` with rho = tanh v), whitens them by their covariance
 eigenvalue is 1; NUTS's step size is capped near 2 / sqrt(largest), and its trajectories
 span ~1, so the largest eigenvalue and its direction say where the leapfrog steps go. Prints
 one line per draw and merges the summary into `benchmarks/posterior.json` (`mbw_geometry`,
-`hessian`). Reads the sampler's internals (`mrjax.bayes._sampler`, `_start`): a diagnosis,
+`hessian`). Reads the sampler's internals (`mrjax.bayes._sample`, `_start`): a diagnosis,
 not an interface.
 """
 
@@ -31,7 +31,7 @@ def main() -> None:
     from scipy import stats
 
     import mrjax
-    import mrjax.bayes._sampler as sampler_module
+    import mrjax.bayes._sample as sample_module
     from mrjax.bayes._priors import from_box
     from mrjax.bayes._start import log_density
 
@@ -44,17 +44,17 @@ def main() -> None:
     i = list(batch.labels).index(a.test)
     res, batch = res.subset([i]), batch.subset([i])
     seen = {}
-    run = sampler_module._run
+    run = sample_module.run_chains
 
     def spy(*args):
-        seen["args"] = args
+        seen.setdefault("args", args)  # the first round's: every unit
         return run(*args)
 
-    sampler_module._run = spy
+    sample_module.run_chains = spy
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        post = mrjax.posterior(res, batch, noise="ar1", draws=a.draws, warmup=a.draws,
-                               chains=4, seed=0).posterior
+        sampler = mrjax.Sampler(draws=a.draws, warmup=a.draws, chains=4)
+        post = mrjax.posterior(res, batch, noise="ar1", sampler=sampler, key=0).posterior
     target, prior, _, _, units, _, _, _ = seen["args"]
     free = np.asarray(target.free)
     th = post.theta[0][..., free].reshape(-1, len(free))

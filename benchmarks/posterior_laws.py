@@ -135,7 +135,7 @@ def render(doc: dict[str, Any]) -> str:
         "(pooled over the records; a calibrated band covers about 95 %). The band's noise level: "
         "a fitted record's RMS residual at the posterior-median laws; a new record's, those "
         "relative to max |F|, pooled (root mean square) over the fitted records of its motion "
-        "(same frequency and amplitude; the rule of `mrjax.bayes.NOISE_RULE`) or, in the "
+        "(same frequency and amplitude; the rule of `mrjax.generalize.NOISE_RULE`) or, in the "
         "'pooled' row (the first rule), over all of them, times its predicted max |F|. Cold processes, 2 "
         "shared cores; `python -m benchmarks.posterior_laws`.", "",
         "| model | noise | likelihood | new record's noise | chains x draws (+warmup) | "

@@ -45,7 +45,9 @@ def fit_one(name: str, restarts: int, polish_steps: int, data: str | None, warm:
     batch = make_batch(load(d))
     t_load = time.perf_counter() - t0
     t1 = time.perf_counter()
-    res = mrjax.fit(name, batch, seed=0, restarts=restarts, polish_steps=polish_steps)
+    settings = dict(swarm=mrjax.Swarm(restarts=restarts),
+                    polish=mrjax.Polish(max_steps=polish_steps), key=0)
+    res = mrjax.fit(name, batch, **settings)
     wall = time.perf_counter() - t1
     out = {
         "wall_s": wall, "import_and_load_s": t_load, "restarts": restarts,
@@ -61,7 +63,7 @@ def fit_one(name: str, restarts: int, polish_steps: int, data: str | None, warm:
     }
     if warm:
         t1 = time.perf_counter()
-        mrjax.fit(name, batch, seed=0, restarts=restarts, polish_steps=polish_steps)
+        mrjax.fit(name, batch, **settings)
         out["warm_wall_s"] = time.perf_counter() - t1
     return out
 

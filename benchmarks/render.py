@@ -259,7 +259,8 @@ def _polish_part(polish) -> list[str]:
     L = [
         "## 3. Swarm vs swarm + polish vs polish alone",
         "",
-        "`mrjax.fit(model, grid, method=..., uncertainty=False)`, default separable swarm "
+        "`mrjax.fit(model, grid, swarm=..., polish=...)` (the swarm alone: `polish=None`; the "
+        "polish alone: `swarm=None`; without std-errors), default separable swarm "
         "with the statistical stop; warm wall time (second call) and cold (first call, "
         "compiles). ![polish](polish.png)",
         "",

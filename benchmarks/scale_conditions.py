@@ -52,9 +52,11 @@ def child(n: int, memory: str, method: str) -> dict:
     batch = batch_of(n)
     t_data = time.perf_counter() - t0
     data_bytes = sum(np.asarray(a).nbytes for a in jax.tree.leaves(batch) if hasattr(a, "shape"))
-    plan = mrjax.fitting.chunk_plan("kwok", batch, method=method, max_memory=memory)
+    polish = None if method == "pso" else mrjax.Polish()
+    chunks = mrjax.Chunks(max_memory=memory)
+    plan = mrjax.fitting.chunk_plan("kwok", batch, polish=polish, chunks=chunks)
     t1 = time.perf_counter()
-    res = mrjax.fit("kwok", batch, method=method, seed=0, max_memory=memory)
+    res = mrjax.fit("kwok", batch, polish=polish, key=0, chunks=chunks)
     t_fit = time.perf_counter() - t1
     truth_rms = 20.0  # the noise of the simulated data [N]
     return {"conditions": n, "samples": int(batch.length), "method": method, "memory": memory,

@@ -3,14 +3,14 @@
     python -m benchmarks.scipy_polish [--tests 2mm5Hz0x5A,10mm1Hz0x5A,25mm0x5Hz0x5A]
 
 For a few UTFSM tests (read from $MRJAX_DATA or ../shared/data/utfsm; never committed): mrjax's
-swarm gives one start per test (`mrjax.fit(..., method="pso")`, seed 0). From that same start
+swarm gives one start per test (`mrjax.fit(..., polish=None)`, seed 0). From that same start
 
 - **SciPy**: `scipy.optimize.least_squares` (trust-region reflective, bounds = the model's box,
   `x_scale="jac"`) on residuals computed by `scipy.integrate.solve_ivp` (LSODA, rtol 1e-6,
   atol 1e-9) of Spencer's equations, the excitation linearly interpolated between samples;
   finite-difference Jacobian. One test at a time, as a script would.
-- **mrjax**: `mrjax.refine.polish` on the same tests (one compiled, batched program; its
-  compilation is timed separately).
+- **mrjax**: `mrjax.fitting.polish_fit` on the same tests (the engine's polish stage: one
+  compiled, batched program; its compilation is timed separately).
 
 Prints and writes `benchmarks/scipy_polish.json`: wall time per test and the NRMSE each
 reaches (RMS / max|F|), on the 2-core CPU the numbers in the README were measured on.
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import mrjax
     from mrjax.data import load, make_batch
-    from mrjax.refine import polish
+    from mrjax.fitting import polish_fit
 
     d = args.data or default_data_dir()
     if d is None:
@@ -87,14 +87,15 @@ def main(argv: list[str] | None = None) -> int:
     conds = [c for c in load(d) if c.label in names]
     batch = make_batch(conds)
     model = mrjax.models.get("modified_bouc_wen")
-    log("swarm starts (mrjax, method='pso', seed 0)")
-    start = mrjax.fit(model, batch, method="pso", seed=0, uncertainty=False)
+    log("swarm starts (mrjax, polish=None, seed 0)")
+    start = mrjax.fit(model, batch, polish=None, key=0)
     lo, hi = model.bounds
+    settings = mrjax.Polish(max_steps=200, retry=False)
     t0 = time.perf_counter()
-    pol = polish(model, start.theta, batch, max_steps=200)
+    pol = polish_fit(start, batch, polish=settings)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    pol = polish(model, start.theta, batch, max_steps=200)
+    pol = polish_fit(start, batch, polish=settings)
     warm = time.perf_counter() - t0
     rows = []
     for i, c in enumerate(conds):
