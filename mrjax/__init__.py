@@ -40,6 +40,7 @@ _LAZY: dict[str, tuple[str, str | None]] = {
     "comparison": ("mrjax.comparison", None),
     "data": ("mrjax.data", None),
     "engine": ("mrjax.engine", None),
+    "export": ("mrjax.export", None),
     "fitting": ("mrjax.fitting", None),
     "generalize": ("mrjax.generalize", None),
     "models": ("mrjax.models", None),
@@ -69,6 +70,7 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers and readers
     from . import comparison as comparison
     from . import data as data
     from . import engine as engine
+    from . import export as export
     from . import fitting as fitting
     from . import generalize as generalize
     from . import models as models

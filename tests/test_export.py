@@ -211,14 +211,15 @@ def test_one_parameter_set_exports(tmp_path):
 def test_inverse_reaches_and_saturates(tmp_path, name):
     """Along a record: a desired force made by a command inside the range is reproduced to 1e-6
     of the force RMS (the command passed to `mrjax_step` at that sample); a force beyond every
-    admissible one saturates exactly at the end of the range whose force is closest."""
+    admissible one gets the command whose force is closest: exactly the end of the range where
+    the force is monotone in the command."""
     gm = linear_laws(name)
     cm = ControllerModel.from_generalized(gm, dt=1 / RATE, motions=[(FREQ, AMP)])
     lib = build(tmp_path, cm)
     t, x, v = sine(600)
     rng = np.random.default_rng(0)
     s = lib.init(x[0], v[0], 0.5)
-    forces, worst = [], 0.0
+    forces, worst, saturated = [], 0.0, 0
     for k in range(1, len(t)):
         forces.append(lib.step(s, x[k], v[k], 0.5, 1 / RATE))
         if k % 25:
@@ -227,11 +228,17 @@ def test_inverse_reaches_and_saturates(tmp_path, name):
         want = lib.step(s.copy(), x[k], v[k], u0, 0.0)
         u = lib.inverse(s, x[k], v[k], want, 1 / RATE)
         worst = max(worst, abs(lib.step(s.copy(), x[k], v[k], u, 0.0) - want))
-        ends = {e: lib.step(s.copy(), x[k], v[k], e, 0.0) for e in (0.0, 1.0)}
+        grid = np.array([lib.step(s.copy(), x[k], v[k], c, 0.0) for c in np.linspace(0, 1, 33)])
+        monotone = np.all(np.diff(grid) >= 0) or np.all(np.diff(grid) <= 0)
         for far in (1e6, -1e6):
             u = lib.inverse(s, x[k], v[k], far, 1 / RATE)
-            assert u in ends and abs(ends[u] - far) == min(abs(f - far) for f in ends.values())
+            f_u = lib.step(s.copy(), x[k], v[k], u, 0.0)
+            assert abs(f_u - far) <= np.min(np.abs(grid - far)) + 1e-12 * abs(far)
+            if monotone:  # the force out of reach: exactly the end whose force is closest
+                assert u in (0.0, 1.0) and f_u == grid[0 if u == 0.0 else -1]
+            saturated += u in (0.0, 1.0)
     assert worst <= INVERSE_TOL * np.sqrt(np.mean(np.square(forces)))
+    assert saturated >= 20  # of 2 x 23 checks: the force is monotone in the current mostly
 
 
 @pytest.mark.parametrize("name, lag", [("kwok", None), ("modified_bouc_wen", None),
@@ -391,19 +398,22 @@ def test_unsupported_primitive_in_python():
 
 
 # ------------------------------------------------------------------------------ UTFSM
-UTFSM_FIT = ("2mm5Hz", "5mm3Hz")  # two short motions of the 30 tests
+UTFSM_FIT = ("2mm5Hz",)  # the shortest motion of the 30 tests (about 450 samples each)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", ["kwok", "modified_bouc_wen", f"{EXAMPLES}:Tanh"])
+@pytest.mark.parametrize("model", ["kwok", "modified_bouc_wen"])
 def test_utfsm_laws_exported_run_on_held_out_currents(tmp_path, utfsm, model):
-    """Joint laws fitted on UTFSM tests at 0, 0.5 and 1 A, exported with `--data` the tests at
-    0.25 and 0.75 A, equal predicted.csv there to 1e-9 of each record's force RMS; the FMU
-    validates. (benchmarks/export.py runs the same on all six motions and prints the figures.)"""
+    """Joint laws fitted on UTFSM tests at 0, 0.5 and 1 A (one motion, a small swarm: the check
+    is the export's equality with `mrjax predict`, not the fit), exported with `--data` the tests
+    at 0.25 and 0.75 A, equal predicted.csv there to 1e-9 of each record's force RMS
+    (benchmarks/export.py runs the same on all six motions, with a declared model too, and
+    prints the figures; here the declared models run on simulated records)."""
     fit_files = [utfsm / f"{m}{c}A.txt" for m in UTFSM_FIT for c in ("0", "0x5", "1")]
     held = [utfsm / f"{m}{c}A.txt" for m in UTFSM_FIT for c in ("0x25", "0x75")]
     code, _, err = run(["fit", *fit_files, "--model", model, "--generalize", "joint",
-                        "--out", tmp_path / "fit", "--no-plots", "--max-generations", "60"])
+                        "--out", tmp_path / "fit", "--no-plots", "--particles", "20",
+                        "--max-generations", "30", "--no-retry"])
     assert code == 0, err
     code, _, err = run(["predict", "--fit", tmp_path / "fit", *held, "--out", tmp_path / "p",
                         "--no-plots"])

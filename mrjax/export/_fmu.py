@@ -231,47 +231,19 @@ static fmi2Status none(fmi2Component c, const char *what)
     return fmi2Error;
 }}
 
-fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                          fmi2Integer value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2GetInteger: no integer variables");
-}}
-
-fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                          fmi2Boolean value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2GetBoolean: no boolean variables");
-}}
-
-fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                         fmi2String value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2GetString: no string variables");
-}}
-
-fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                          const fmi2Integer value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2SetInteger: no integer variables");
-}}
-
-fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                          const fmi2Boolean value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2SetBoolean: no boolean variables");
-}}
-
-fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n,
-                         const fmi2String value[])
-{{
-    (void)vr; (void)value;
-    return n == 0 ? fmi2OK : none(c, "fmi2SetString: no string variables");
-}}
+/* No integer, boolean or string variables: only empty requests succeed. */
+#define NO_VARIABLES(fn, type, what) \
+    fmi2Status fn(fmi2Component c, const fmi2ValueReference vr[], size_t n, type value[]) \
+    {{ \
+        (void)vr; (void)value; \
+        return n == 0 ? fmi2OK : none(c, #fn ": no " what " variables"); \
+    }}
+NO_VARIABLES(fmi2GetInteger, fmi2Integer, "integer")
+NO_VARIABLES(fmi2GetBoolean, fmi2Boolean, "boolean")
+NO_VARIABLES(fmi2GetString, fmi2String, "string")
+NO_VARIABLES(fmi2SetInteger, const fmi2Integer, "integer")
+NO_VARIABLES(fmi2SetBoolean, const fmi2Boolean, "boolean")
+NO_VARIABLES(fmi2SetString, const fmi2String, "string")
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
 {{

@@ -236,18 +236,14 @@ def read_fit(path: str | os.PathLike) -> tuple[bytes, Path]:
     """The bytes of a `fit.json` (or of the one in a directory) and its path. Raises
     :class:`mrjax.InputError` when it is missing or not a JSON object."""
     p = Path(path).expanduser()
-    if p.is_dir():
-        p = p / "fit.json"
+    p = p / "fit.json" if p.is_dir() else p
     if not p.is_file():
         raise InputError(f"{path}: no such file (expected a fit.json written by `mrjax fit`)")
     raw = p.read_bytes()
     try:
-        doc = json.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a fit.json (not UTF-8 text)") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{path}: not valid JSON (line {e.lineno}, column {e.colno}: "
-                         f"{e.msg})") from None
+        doc = json.loads(raw)
+    except ValueError as e:  # not UTF-8, or not JSON
+        raise InputError(f"{path}: not a fit.json ({' '.join(str(e).split())})") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: not a fit.json (expected a JSON object)")
     return raw, p
