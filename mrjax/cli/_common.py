@@ -130,18 +130,22 @@ HOLD_SHARE = 1 / 3
 
 
 def load_tests(paths: Sequence[str | os.PathLike], spec: DataSpec | None,
-               memory: int | None) -> Batch | Source:
+               memory: int | None, *, stream: bool = False) -> Batch | Source:
     """The tests of a fit within `memory` bytes (None: the default budget of
     `mrjax.fitting.default_budget`): one padded batch when the budget holds them
-    (`HOLD_SHARE`), else a `mrjax.data.Source` that the fit reads chunk by chunk."""
+    (`HOLD_SHARE`), else a `mrjax.data.Source` that the fit reads chunk by chunk; always the
+    `Source` with `stream` (a cluster's workers read their chunks from the files)."""
     files = find_files(paths)
     budget = memory if memory is not None else default_budget()
-    keep = max(0, int(HOLD_SHARE * (budget - RUNTIME_BYTES)))
+    keep = 0 if stream else max(0, int(HOLD_SHARE * (budget - RUNTIME_BYTES)))
     say(f"loading {len(files)} file{'s' if len(files) != 1 else ''}...")
     source = Source.scan(files, spec=spec, keep_bytes=keep)
+    C = source.n_conditions
+    if stream:
+        say(f"the {C} tests are read from the files chunk by chunk by the cluster's workers")
+        return source
     if source.kept:
         return source.batch()
-    C = source.n_conditions
     say(f"the {C} tests take more than the memory budget ({budget / 1e9:.3g} GB) can hold "
         f"with the fit: they are read from the files chunk by chunk")
     return source

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
         restarts=args.restarts, dtype=args.swarm_dtype)
     polish = None if args.method == "pso" else Polish(max_steps=args.polish_steps,
                                                       retry=not args.no_retry)
-    chunks = Chunks(max_memory=args.memory, devices=args.devices)
+    chunks = Chunks(max_memory=args.memory, devices=args.devices, cluster=args.cluster)
     spec = data_spec(args)
     if args.validate:
         batch, validate = load_batches([args.files, args.validate], spec)

@@ -90,7 +90,8 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     bounds = parse_bounds(args.bounds, model)
     post = posterior_settings(args, model.param_names)  # checked before any work
     spec = data_spec(args)
-    data = load_tests(args.files, spec, args.memory)
+    data = load_tests(args.files, spec, args.memory,
+                      stream=args.cluster is not None and not args.generalize and post is None)
     streamed = isinstance(data, Source)
     survey = _survey(data, args.memory)
     say_estimates(survey.estimated)
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     journal = out.path / JOURNAL
     swarm, polish = fit_settings(args)
     chunks = Chunks(max_memory=args.memory, size=args.chunk_size, journal=journal,
-                    resume=args.resume, devices=args.devices)
+                    resume=args.resume, devices=args.devices, cluster=args.cluster)
     result = fit(model, data, swarm=swarm, polish=polish, key=args.seed, bounds=bounds,
                  transient=args.transient, chunks=chunks, progress=None)
     batch, rows = data, None

@@ -223,18 +223,24 @@ def add_output_options(parser: argparse.ArgumentParser, command: str, *,
 
 
 def add_scale_options(parser: argparse.ArgumentParser, *, journal: bool) -> None:
-    """`--memory`, `--devices` (and for `mrjax fit`, `--chunk-size` and `--resume`): how a
-    fit of many tests uses the machine; none of them changes the results."""
+    """`--memory`, `--devices`, `--cluster` (and for `mrjax fit`, `--chunk-size` and
+    `--resume`): how a fit of many tests uses the machine or a cluster; none of them changes
+    the results."""
     g = parser.add_argument_group(
-        "many tests", "how the fit uses the machine; the results do not depend on these "
-        "(see 'Thousands of tests' in the README)")
+        "many tests", "how the fit uses the machine or a cluster; the results do not depend on "
+        "these (see 'Thousands of tests' in the README)")
     g.add_argument("--memory", type=memory_size, metavar="SIZE",
                    help="memory budget, e.g. 8GB or 512MB: the tests are fitted in chunks "
                    "whose estimated memory fits it (default: half of the available memory)")
     g.add_argument("--devices", type=device_count, metavar="N|all",
                    help="shard each chunk's tests over the first N local JAX devices, or all "
                    "(default one; on a CPU, set XLA_FLAGS=--xla_force_host_platform_device_"
-                   "count=N to expose N devices)")
+                   "count=N to expose N devices; with --cluster, each worker's own)")
+    g.add_argument("--cluster", metavar="ADDRESS",
+                   help="fit the chunks on the Dask cluster of this scheduler, e.g. "
+                   "tcp://host:8786, one task per chunk; the workers read their chunks from "
+                   "the files; --memory is then per worker thread (default: half of a "
+                   "worker's memory limit) (needs pip install 'mrjax[cluster]')")
     if journal:
         g.add_argument("--chunk-size", type=positive_int, metavar="N",
                        help="tests per chunk instead of --memory")

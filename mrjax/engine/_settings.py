@@ -129,7 +129,8 @@ class Polish(eqx.Module):
 
 class Chunks(eqx.Module):
     """How a per-test fit is split and placed (`mrjax.fit`): the condition axis in chunks of
-    bounded memory, a journal to resume from, the devices. None of these changes a result.
+    bounded memory, a journal to resume from, the devices, a Dask cluster. None of these
+    changes a result.
 
     **Fields:**
 
@@ -146,7 +147,15 @@ class Chunks(eqx.Module):
         they were written for the same data and settings (`mrjax.fitting.Journal`).
     - `resume`: see `journal`.
     - `devices`: shard the condition axis over these devices: `"all"`, a count, or a list of
-        `jax.Device` (None: one device); see `mrjax.parallel`. Same key, same result.
+        `jax.Device` (None: one device); see `mrjax.parallel`. Same key, same result. With a
+        `cluster`, each worker shards its chunks over its own devices (`"all"` or a count).
+    - `cluster`: fit the chunks on a Dask cluster, each chunk one task (`pip install
+        'mrjax[cluster]'`): a `distributed.Client`, a Dask cluster object (e.g.
+        `distributed.LocalCluster`) or a scheduler address such as `"tcp://host:8786"`. The
+        workers read their chunks of a `mrjax.data.Source` from its files; `max_memory` is then
+        the budget of one worker thread (default: half of the workers' memory limit per
+        thread). Same chunks, same result as in one process (see `mrjax.fitting.Journal` for
+        resuming, and the how-to "From one machine to a cluster").
 
     ```python
     mrjax.fit("kwok", "tests/", chunks=mrjax.Chunks(max_memory="4GB", journal="journal/"))
@@ -158,8 +167,18 @@ class Chunks(eqx.Module):
     journal: str | Path | None = eqx.field(static=True, default=None)
     resume: bool = eqx.field(static=True, default=False)
     devices: Any = eqx.field(static=True, default=None)
+    cluster: Any = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        c = self.cluster
+        if c is not None and not (isinstance(c, str) and c.strip() or hasattr(c, "submit")
+                                  or hasattr(c, "scheduler_address")):
+            raise InputError(f"cluster must be a distributed.Client, a Dask cluster or a "
+                             f"scheduler address like 'tcp://host:8786', got {c!r}")
+        if c is not None and self.devices is not None and not isinstance(self.devices,
+                                                                         (str, int)):
+            raise InputError("with a cluster, devices is 'all' or a count: each worker uses "
+                             "its own devices")
         if not isinstance(self.resume, bool):
             raise InputError(f"chunks resume must be True or False, got {self.resume!r}")
         if self.resume and self.journal is None:
