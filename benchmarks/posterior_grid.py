@@ -47,7 +47,10 @@ def main() -> None:
                               for k in ("ess_bulk", "ess_tail") for v in d[k].values()]), axis=0)
     div = p.diverging.sum(axis=(1, 2))
     rounds = getattr(p, "rounds", None)
-    doc = {"label": a.label, "machine": f"{platform.machine()} {os.cpu_count()} cores",
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    doc = {"label": a.label, "cpu_s": ru.ru_utime + ru.ru_stime, "machine": f"{platform.machine()} {os.cpu_count()} cores",
            "load_1min": os.getloadavg()[0], "date": time.strftime("%Y-%m-%d %H:%M"),
            "wall_s": wall, "fit_s": t_fit, "tests": int(p.n_units),
            "coverage_95": float(inside.mean()),
