@@ -45,7 +45,8 @@ def add_parser(sub, common) -> None:
                    "on them as `mrjax predict` chooses them (read with the data options below)")
     p.add_argument("--dt", type=_positive_float, default=None, metavar="SECONDS",
                    help="the controller's sample interval the sub-steps are chosen for, without "
-                   "--data (default 0.001); also the FMU's default step")
+                   "--data (default 0.001); also the FMU's default step (default: --data's "
+                   "sample interval, else 0.001)")
     p.add_argument("--substeps", type=positive_int, metavar="N",
                    help="integrate with N sub-steps per sample instead (with --scheme)")
     p.add_argument("--scheme", choices=("rk4", "sdirk"), default=None,
@@ -64,6 +65,8 @@ def add_parser(sub, common) -> None:
 def run(args: argparse.Namespace, out: OutputDir) -> int:
     """Run `mrjax export` with parsed arguments into the claimed directory `out`; returns the
     exit code."""
+    import numpy as np
+
     from ..export import C99, DEFAULT_DT, FMU, ControllerModel  # imported here: JAX
     from ._common import data_spec, load_batch
 
@@ -75,8 +78,10 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
                                   substeps=args.substeps, scheme=args.scheme)
     if args.to == "c":
         target = C99(prefix=args.prefix)
-    else:
-        target = FMU(identifier=None if args.prefix == "mrjax" else args.prefix, step=dt)
+    else:  # its default step: --dt, else the records' sample interval
+        step = dt if records is None or args.dt is not None else float(
+            np.median(np.asarray(records.dt)[np.asarray(records.mask)]))
+        target = FMU(identifier=None if args.prefix == "mrjax" else args.prefix, step=step)
     say(f"translating {cm.model.name} into {'C99' if args.to == 'c' else 'an FMU'}...")
     files = target.files(cm)
     say(f"writing {', '.join(sorted(files))} to {out.path}...")

@@ -16,6 +16,7 @@ from ._build import CFLAGS as CFLAGS
 from ._build import CLibrary as CLibrary
 from ._build import compile_shared as compile_shared
 from ._csource import C99 as C99
+from ._emit import PRELUDE as PRELUDE
 from ._emit import PRIMITIVES as PRIMITIVES
 from ._emit import UnsupportedPrimitive as UnsupportedPrimitive
 from ._emit import translate as translate
@@ -25,5 +26,5 @@ from ._model import ControllerModel as ControllerModel
 from ._write import Target as Target
 from ._write import write as write
 
-__all__ = ["C99", "CFLAGS", "CLibrary", "ControllerModel", "DEFAULT_DT", "FMU", "PRIMITIVES",
-           "Target", "UnsupportedPrimitive", "compile_shared", "translate", "write"]
+__all__ = ["C99", "CFLAGS", "CLibrary", "ControllerModel", "DEFAULT_DT", "FMU", "PRELUDE",
+           "PRIMITIVES", "Target", "UnsupportedPrimitive", "compile_shared", "translate", "write"]

@@ -184,7 +184,7 @@ def c_sources(cm: ControllerModel, prefix: str) -> tuple[str, str]:
     fields = dict(p=p, P=P, N=N, lo=c_literal(lo, "float64"), hi=c_literal(hi, "float64"),
                   unit=unit, guard=f"{P}_MODEL_H", inverse_doc=doc)
     header = _banner(cm, f"{p}_model.h") + "\n" + _HEADER.format(**fields)
-    used = "".join(text for text, _ in parts)
+    used = "".join(parts)
     helpers = [line for line in PRELUDE.splitlines() if line.split("(")[0].split()[-1] in used]
     lag = "" if cm.laws.lag is None else _LAG_CODE.format(
         eta=c_literal(cm.laws.lag, "float64"), iu=cm.model_state_size + 2)
@@ -192,7 +192,7 @@ def c_sources(cm: ControllerModel, prefix: str) -> tuple[str, str]:
                       golden=c_literal(0.5 * (math.sqrt(5.0) - 1.0), "float64"))
     source = "\n".join([_banner(cm, f"{p}_model.c"), "#include <math.h>", "",
                         f'#include "{p}_model.h"', "", *helpers, "",
-                        *(text for text, _ in parts), api])
+                        *parts, api])
     return header, source
 
 

@@ -21,6 +21,7 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 
+import jax
 import numpy as np
 from jax.extend import core
 
@@ -56,12 +57,12 @@ _BOOL_FORMS: dict[str, str] = {"and": "{0} && {1}", "or": "{0} || {1}", "xor": "
 #: Element-wise primitives whose `_FLOAT_FORMS` form holds for any dtype.
 _ANY_KIND = ("add", "sub", "mul", "div", "neg", "eq", "ne", "lt", "le", "gt", "ge", "square")
 #: Primitives with no run-time code: they move, copy or relabel elements.
-_STRUCTURAL = ("broadcast_in_dim", "reshape", "squeeze", "expand_dims", "slice", "concatenate",
-               "stack", "split", "transpose", "rev", "iota", "copy", "copy_p", "stop_gradient",
+_STRUCTURAL = ("broadcast_in_dim", "reshape", "squeeze", "slice", "concatenate", "stack",
+               "split", "transpose", "rev", "iota", "copy", "stop_gradient",
                "optimization_barrier", "reduce_precision", "dynamic_slice")
-#: Primitives that hold a jaxpr, inlined.
+#: Primitives that hold a jaxpr, inlined (some names are those of other JAX versions).
 _CALLS = ("jit", "pjit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call",
-          "custom_vjp_call_jaxpr", "remat", "checkpoint")
+          "custom_vjp_call_jaxpr", "remat2", "checkpoint")
 _OTHER = ("convert_element_type", "select_n", "clamp", "integer_pow", "round", "dot_general",
           "reduce_sum", "reduce_max", "reduce_min", "reduce_prod", "scan", "cond")
 #: Every primitive the emitter translates into C99.
@@ -249,7 +250,6 @@ class _Translator:
         self.count = itertools.count()
         self.names: set[str] = set()
         self.stmts: list = []
-        self.uses_prelude = False
 
     # -- emission helpers
     def fresh(self, prefix: str = "t") -> str:
@@ -329,7 +329,7 @@ class _Translator:
             idx = np.indices(shape)[p["dimension"]] if shape else np.zeros((), int)
             return [_const_val(idx.astype(dt), dt)]
         v = ins[0]
-        if name in ("copy", "copy_p", "stop_gradient"):
+        if name in ("copy", "stop_gradient"):
             return [v]
         if name == "optimization_barrier":
             return list(ins)
@@ -337,7 +337,7 @@ class _Translator:
             if (p["exponent_bits"], p["mantissa_bits"]) != (11, 52) or v.dtype != np.float64:
                 self.unsupported("reduce_precision")
             return [v]
-        if name in ("reshape", "squeeze", "expand_dims"):
+        if name in ("reshape", "squeeze"):
             if p.get("dimensions") not in (None, ()) and name == "reshape":
                 self.unsupported("reshape with a dimension order")
             return [_map(v, lambda a: a.reshape(shape))]
@@ -419,7 +419,6 @@ class _Translator:
             lo, x, hi = ops
             f = ("mrjax__min(mrjax__max({1}, {0}), {2})" if dtype.kind == "f"
                  else "({1} < {0}) ? {0} : (({1} > {2}) ? {2} : {1})")
-            self.uses_prelude |= dtype.kind == "f"
             return self.define(f.format(lo, x, hi), dtype, ops, fold)
         if name == "integer_pow":
             return self.integer_pow(ops[0], int(p["y"]), dtype, fold)
@@ -430,7 +429,6 @@ class _Translator:
             return self.define(f"{'round' if method == 0 else 'nearbyint'}({ops[0]})", dtype,
                                ops, fold)
         form = self.form(name, dtypes[0])
-        self.uses_prelude |= "mrjax__" in form
         expr = form.format(*ops)
         if dtype.name == "float32" and "(" in form:
             expr = f"(float)({expr})"
@@ -588,7 +586,7 @@ def _fold(name, kn, dtype):
 
 
 def translate(fn_name: str, closed, inputs: Sequence[tuple[str, tuple[int, ...]]],
-              outputs: Sequence[str], *, where: str) -> tuple[str, bool]:
+              outputs: Sequence[str], *, where: str) -> str:
     """One C99 function from a closed jaxpr.
 
     **Arguments:**
@@ -601,8 +599,7 @@ def translate(fn_name: str, closed, inputs: Sequence[tuple[str, tuple[int, ...]]
         element.
     - `where`: what is translated, for the error message.
 
-    **Returns:** `(text, uses_prelude)`: the C text, and whether it calls the helpers of
-    :data:`PRELUDE`.
+    **Returns:** the C text (it may call the helpers of :data:`PRELUDE`, emitted before it).
 
     Raises :class:`UnsupportedPrimitive` (one line) for a primitive outside
     :data:`PRIMITIVES`.
@@ -629,11 +626,9 @@ def translate(fn_name: str, closed, inputs: Sequence[tuple[str, tuple[int, ...]]
     live = _live(tr.stmts)
     body = [f"    (void){n};" for n, _ in inputs] + _render(tr.stmts, live, "    ")
     head = f"static void {fn_name}({', '.join(params)})"
-    return head + "\n{\n" + "\n".join(body) + "\n}\n", tr.uses_prelude
+    return head + "\n{\n" + "\n".join(body) + "\n}\n"
 
 
 def trace(fn: Callable, *shapes: tuple[int, ...]):
     """`jax.make_jaxpr(fn)` on float64 zeros of `shapes` (the closed jaxpr to translate)."""
-    import jax
-
     return jax.make_jaxpr(fn)(*(np.zeros(s, np.float64) for s in shapes))
