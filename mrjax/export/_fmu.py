@@ -309,11 +309,16 @@ fmi2Status fmi2CancelStep(fmi2Component c)
     return none(c, "fmi2CancelStep: steps are synchronous");
 }}
 
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
-{{
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
-}}
+/* Status queries without an answer (the steps are synchronous). */
+#define NO_STATUS(fn, type) \
+    fmi2Status fn(fmi2Component c, const fmi2StatusKind s, type *value) \
+    {{ \
+        (void)c; (void)s; (void)value; \
+        return fmi2Discard; \
+    }}
+NO_STATUS(fmi2GetStatus, fmi2Status)
+NO_STATUS(fmi2GetIntegerStatus, fmi2Integer)
+NO_STATUS(fmi2GetStringStatus, fmi2String)
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
 {{
@@ -323,12 +328,6 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
     return fmi2OK;
 }}
 
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
-{{
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
-}}
-
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
 {{
     (void)c;
@@ -336,12 +335,6 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
         return fmi2Discard;
     *value = fmi2False;
     return fmi2OK;
-}}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
-{{
-    (void)c; (void)s; (void)value;
-    return fmi2Discard;
 }}
 """
 
