@@ -217,7 +217,7 @@ class ControllerModel:
                                                 if self.model.description else "")]
         fixed = lo == hi and all(len(gm.laws[n].coefficients) == 1 for n in gm.param_names)
         lines.append("one parameter set (the command has no effect)" if fixed else
-                      f"laws of the {what} ({gm.method}):")
+                      f"laws of the {what} ({gm.method}; 6 digits here, exact in the code):")
         for n, u in zip(gm.param_names, self.model.units):
             lines.append(f"  {n} = {gm.laws[n].formula(var)}  [{u}]")
         lines.append(f"admissible command: [{lo!r}, {hi!r}] {gm.command_unit}")
