@@ -235,7 +235,8 @@ def gradient_cost() -> list[dict[str, Any]]:
     import jax.numpy as jnp
 
     import mrjax
-    from mrjax.bayes import PerTestResidual, block_loglik
+    from mrjax.bayes import block_loglik
+    from mrjax.objective import ConditionResidual
 
     rows = []
     for model_name, data in (("kwok", "record"), ("kwok", "view"),
@@ -250,7 +251,7 @@ def gradient_cost() -> list[dict[str, Any]]:
         theta = jnp.asarray(res.theta[0])
         model = mrjax.models.resolve_model(res.model, res.theta, batch.xdot, batch.dt, batch.mask)
         unit = (batch.x[0], batch.xdot[0], batch.dt[0], batch.force[0], jnp.asarray(mask)[0])
-        resid = PerTestResidual(model)
+        resid = ConditionResidual(model, blocks=True)
         force = lambda th: jnp.sum(model.force(th, unit[0], unit[1], unit[2]))
         r_fn = lambda th: resid(th, unit)[0][0]
         ll = lambda r: block_loglik(r, unit[4][None], jnp.zeros(1))
