@@ -3,6 +3,7 @@ simulated records (tanh and Dahl), NaN-safety, seeds, bad options, files and the
 line. The calibration study and the speed figures are in `benchmarks/posterior.py`.
 """
 
+import dataclasses
 import json
 import warnings
 
@@ -16,12 +17,32 @@ from helpers import run_cli as run
 
 import mrjax
 from mrjax import InputError
-from mrjax.bayes import LogNormal, Normal, Sampler, Uniform, from_box, log_jacobian, sample, to_box
+from mrjax.bayes import (
+    Likelihood,
+    LogNormal,
+    Normal,
+    Sampler,
+    Uniform,
+    from_box,
+    log_jacobian,
+    sample,
+    to_box,
+)
 
-SHORT = Sampler(draws=300, chains=2, warmup=300)
+#: The core's known answers are those of one run's draws: no continuation rounds (they are
+#: taken by the per-test kind below, at the defaults).
+SHORT = Sampler(draws=300, chains=2, warmup=300, continuations=0)
 #: One compiled program serves most core tests: same residual, shapes and sampler (priors and
 #: boxes are data).
-BOX = dict(lower=[-10.0, -10.0], upper=[10.0, 10.0], names=("a", "b"), sampler=SHORT)
+BOX = dict(lower=[-10.0, -10.0], upper=[10.0, 10.0], names=("a", "b"))
+
+
+def box_sample(residual, theta0, data, *, sampler=SHORT, noise="iid", prior=None, key=0,
+               **fields):
+    """`mrjax.bayes.sample` on the :class:`Likelihood` of `residual` in the box `BOX` (its
+    fields overridden by `fields`)."""
+    return sample(Likelihood(residual, theta0, data, **dict(BOX, **fields)), sampler=sampler,
+                  noise=noise, prior=prior, key=key)
 
 
 # --------------------------------------------------------------------------------------------
@@ -71,7 +92,7 @@ def test_core_matches_least_squares_posterior():
     RMS."""
     data, _ = line_data()
     est, se, cov = ols(data)
-    post = sample(Line(), est, data, **BOX)
+    post = box_sample(Line(), est, data)
     th = post.theta.reshape(2, -1, 2)
     # Monte Carlo error of a mean: sd / sqrt(ESS), ESS >= 150 -> < 0.1 sd
     np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
@@ -85,10 +106,15 @@ def test_core_matches_least_squares_posterior():
     # sample alone: reverse mode
     S = post.sampler
     assert S.gradient == "reverse"
-    # the warmup's cost is kept, step by step: leapfrog steps of every warmup step
-    assert post.warmup_steps.shape == (2, S.chains, S.warmup)
-    assert post.warmup_steps.min() >= 1 and post.warmup_steps.max() <= 2**S.max_doublings - 1
-    assert d["leapfrog_per_warmup_step"] == post.warmup_steps.mean()
+    # the warmup's cost is kept: leapfrog steps of each chain's warmup, of 2^r x the warmup
+    # steps in a unit continued r rounds
+    assert post.warmup_steps.shape == (2, S.chains) and post.rounds.shape == (2,)
+    length = S.warmup * 2 ** post.rounds
+    np.testing.assert_array_equal(post.warmup_length, length)
+    assert np.all(post.warmup_steps >= length[:, None])
+    assert np.all(post.warmup_steps <= length[:, None] * (2**S.max_doublings - 1))
+    assert d["leapfrog_per_warmup_step"] == pytest.approx(
+        post.warmup_steps.sum() / (length.sum() * S.chains), rel=1e-12)
 
 
 class SkewedLine(eqx.Module):
@@ -122,7 +148,7 @@ def test_an_approximate_gradient_is_checked_at_the_start(skew, switched):
 
     data, _ = line_data()
     est, se, _ = ols(data)
-    post = sample(SkewedLine(skew), est, data, exact=Line(), **BOX)
+    post = box_sample(SkewedLine(skew), est, data, exact=Line())
     assert (post.gradient_error > GRADIENT_TOL) == switched, post.gradient_error
     if skew == 1.0:  # exact: equal to the central differences to their rounding
         assert post.gradient_error < 1e-6
@@ -167,7 +193,7 @@ def test_forward_mode_gradient_integrates_once():
     th = jnp.asarray(0.5 * (np.asarray(mbw.bounds[0]) + np.asarray(mbw.bounds[1])))
     unit = (jnp.asarray(x), jnp.asarray(v), 0.005, jnp.zeros_like(jnp.asarray(x)),
             jnp.ones(x.shape, bool))
-    residual = mrjax.bayes.PerTestResidual(mbw)
+    residual = mrjax.objective.ConditionResidual(mbw, blocks=True)
     free = np.array([0, 2, 4, 8])
     scale = jnp.asarray(th[free])
 
@@ -241,11 +267,12 @@ import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_posterior import Line, line_data, ols
-from mrjax.bayes import Sampler, chain_devices, sample
+from mrjax.bayes import Likelihood, Sampler, chain_devices, sample
 data, _ = line_data()
 est, se, _ = ols(data)
-s = Sampler(draws=300, chains=4, warmup=300, gradient="forward")
-post = sample(Line(), est, data, lower=[-10, -10], upper=[10, 10], names=("a", "b"), sampler=s)
+s = Sampler(draws=300, chains=4, warmup=300, gradient="forward", continuations=0)
+post = sample(Likelihood(Line(), est, data, lower=[-10, -10], upper=[10, 10], names=("a", "b")),
+              sampler=s)
 th = post.theta.reshape(2, -1, 2)
 print(json.dumps({"devices": chain_devices(s), "z": (np.abs(th.mean(1) - est) / se).tolist(),
                   "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"]}))
@@ -276,8 +303,8 @@ def test_core_ar1_recovers_rho_and_widens_intervals():
     correlated noise)."""
     data, truth = line_data(rho=0.8, seed=1)
     est, se, cov = ols(data)
-    iid = sample(Line(), est, data, noise="iid", **BOX)
-    ar1 = sample(Line(), est, data, noise="ar1", **BOX)
+    iid = box_sample(Line(), est, data, noise="iid")
+    ar1 = box_sample(Line(), est, data, noise="ar1")
     lo, hi = ar1.interval("noise_rho", 0.999).T  # 200 samples: rho is known to +-0.1
     assert np.all((lo < 0.8) & (0.8 < hi)), (lo, hi)
     ratio = np.ptp(ar1.interval("b"), axis=1) / np.ptp(iid.interval("b"), axis=1)
@@ -290,10 +317,10 @@ def test_priors_pull_and_narrow():
     data, _ = line_data()
     est, se, cov = ols(data)
     target = est[0, 0] + 5 * se[0, 0]
-    p = sample(Line(), est, data, prior={"a": Normal(target, se[0, 0] / 10)}, **BOX)
+    p = box_sample(Line(), est, data, prior={"a": Normal(target, se[0, 0] / 10)})
     assert abs(p.draws("a")[0].mean() - target) < 0.2 * se[0, 0]
     cut = est[0, 1] - se[0, 1]
-    q = sample(Line(), est, data, prior={"b": Uniform(-10.0, cut)}, **BOX)
+    q = box_sample(Line(), est, data, prior={"b": Uniform(-10.0, cut)})
     assert q.draws("b")[0].max() <= cut
     assert q.prior == {"b": f"uniform(-10, {cut:g})"}
 
@@ -307,7 +334,7 @@ def test_nan_model_output_is_minus_inf_never_nan():
     shift = -0.5 * se[:, :1] - est[:, :1]
     data = (data[0], data[1] + shift, data[2])
     est[:, :1] += shift
-    post = sample(Line(jnp.asarray(0.0)), est, data, **BOX)
+    post = box_sample(Line(jnp.asarray(0.0)), est, data)
     assert np.all(np.isfinite(post.theta)) and np.all(np.isfinite(post.lp))
     assert post.theta[..., 0].max() <= 0.0
     assert np.all(post.theta[..., 0].min(axis=(1, 2)) < est[:, 0] - se[:, 0])  # explored
@@ -316,9 +343,9 @@ def test_nan_model_output_is_minus_inf_never_nan():
 def test_same_seed_same_draws():
     data, _ = line_data()
     est, _, cov = ols(data)
-    a = sample(Line(), est, data, seed=3, **BOX)
-    b = sample(Line(), est, data, seed=3, **BOX)
-    c = sample(Line(), est, data, seed=4, **BOX)
+    a = box_sample(Line(), est, data, key=3)
+    b = box_sample(Line(), est, data, key=3)
+    c = box_sample(Line(), est, data, key=4)
     np.testing.assert_array_equal(a.theta, b.theta)
     np.testing.assert_array_equal(a.sigma, b.sigma)
     assert not np.array_equal(a.theta, c.theta)
@@ -367,8 +394,7 @@ def test_soft_box_in_log_coordinates():
                     jax.tree.map(jnp.asarray, data), (0, 1), "iid", ("a", "b"))
     assert np.all(est[:, 1] > core.LOG_AWAY * se[:, 1])
     np.testing.assert_array_equal(st.log, [[False, True]] * 2)
-    post = sample(Line(), est, data, lower=[-10.0, 0.0], upper=[10.0, 10.0], names=("a", "b"),
-                  sampler=SHORT)
+    post = box_sample(Line(), est, data, lower=[-10.0, 0.0])
     th = post.theta.reshape(2, -1, 2)
     np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
     np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.2)
@@ -417,26 +443,26 @@ def test_linear_unknowns_integrated_out(linear):
     with AR(1) noise like the sampled one. Same seed, same draws."""
     data, _ = line_data()
     est, se, _ = ols(data)
-    post = sample(Line(), est, data, linear=linear, **BOX)
+    post = box_sample(Line(), est, data, linear=linear)
     assert post.linear == linear
     th = post.theta.reshape(2, -1, 2)
     np.testing.assert_array_less(np.abs(th.mean(axis=1) - est) / se, 0.3)
     np.testing.assert_allclose(th.std(axis=1) / se, 1.0, atol=0.15)
     assert post.diagnostics()["r_hat_max"] < 1.02
-    assert not any("beyond its bounds" in ln for ln in post.problems())
+    assert not any(w.kind == mrjax.WarningKind.BEYOND_BOUNDS for w in post.problems())
     theta = post.theta.copy()
     theta[1, 0, 5, 0] = 10.5  # a draw beyond the box of a (upper 10): a warning line
-    import dataclasses
-
     lines = dataclasses.replace(post, theta=theta).problems()
     assert any("a, integrated out of the log-density, has 1 draw(s) beyond its bounds (most "
-               "on '1')" in ln for ln in lines), lines
-    np.testing.assert_array_equal(post.theta, sample(Line(), est, data, linear=linear,
-                                                     **BOX).theta)
+               "on '1')" in str(w) for w in lines), lines
+    (w,) = [w for w in lines if w.kind == mrjax.WarningKind.BEYOND_BOUNDS]
+    assert w.parameters == ("a",) and w.conditions == ("1",)
+    np.testing.assert_array_equal(post.theta, box_sample(Line(), est, data,
+                                                         linear=linear).theta)
     data, _ = line_data(rho=0.8, seed=1)
     est, se, _ = ols(data)
-    ar1 = sample(Line(), est, data, noise="ar1", linear=linear, **BOX)
-    full = sample(Line(), est, data, noise="ar1", **BOX)
+    ar1 = box_sample(Line(), est, data, noise="ar1", linear=linear)
+    full = box_sample(Line(), est, data, noise="ar1")
     assert ar1.linear == linear and full.linear == ()
     lo, hi = ar1.interval("noise_rho", 0.999).T
     assert np.all((lo < 0.8) & (0.8 < hi)), (lo, hi)
@@ -458,12 +484,12 @@ def test_linear_unknowns_kept_where_they_may_not_be_integrated_out():
     linear by mistake: the regressor check finds it)."""
     data, _ = line_data()
     est, se, _ = ols(data)
-    p = sample(Line(), est, data, linear=("a",), prior={"a": Normal(0.0, 1.0)}, **BOX)
+    p = box_sample(Line(), est, data, linear=("a",), prior={"a": Normal(0.0, 1.0)})
     assert p.linear == ()
-    near = dict(BOX, lower=[float(est[:, 0].max() - 3 * se[:, 0].min()), -10.0])
-    assert sample(Line(), est, data, linear=("a",), **near).linear == ()
+    near = [float(est[:, 0].max() - 3 * se[:, 0].min()), -10.0]
+    assert box_sample(Line(), est, data, linear=("a",), lower=near).linear == ()
     bent = np.column_stack([est[:, 0], np.sqrt(est[:, 1])])
-    q = sample(BentLine(), bent, data, linear=("a", "b"), **BOX)
+    q = box_sample(BentLine(), bent, data, linear=("a", "b"))
     assert q.linear == ("a",)
 
 
@@ -479,8 +505,7 @@ def test_near_a_bound_truncated_normal_without_divergences():
     shift = 1.5 * se[:, 0] - est[:, 0]
     data = (data[0], data[1] + shift[:, None], data[2])
     est[:, 0] += shift
-    box = dict(BOX, lower=[0.0, -10.0])
-    post = sample(Line(), est, data, **box)
+    post = box_sample(Line(), est, data, lower=[0.0, -10.0])
     a = post.draws("a")
     for i in range(2):
         cdf = lambda x: (norm.cdf((x - est[i, 0]) / se[i, 0]) - norm.cdf(-1.5)) / norm.sf(-1.5)
@@ -518,9 +543,8 @@ def test_sampler_defaults_by_model_kind():
 ])
 def test_bad_options_one_line(bad, match):
     data, _ = line_data()
-    kw = dict(BOX, **bad)
     with pytest.raises(InputError, match=match) as e:
-        sample(Line(), np.zeros((2, 2)), data, **kw)
+        box_sample(Line(), np.zeros((2, 2)), data, **bad)
     assert "\n" not in str(e.value)
 
 
@@ -542,8 +566,8 @@ def test_a_symmetry_is_held_and_the_rest_is_conditional(gauge):
     est, se, _ = ols(data)
     a0, b0 = 2.0, est[0, 1] / 2.0  # an optimum on the symmetry's orbit
     theta0 = np.array([[a0, b0, est[0, 0]]])
-    post = sample(Product(), theta0, data, lower=[0.1, 0.1, -10.0], upper=[10.0, 10.0, 10.0],
-                  names=("a", "b", "c"), sampler=SHORT, gauge=gauge)
+    post = box_sample(Product(), theta0, data, lower=[0.1, 0.1, -10.0],
+                      upper=[10.0, 10.0, 10.0], names=("a", "b", "c"), gauge=gauge)
     held = post.held[0]
     assert held.sum() == 1 and not held[2]
     if gauge:
@@ -555,7 +579,10 @@ def test_a_symmetry_is_held_and_the_rest_is_conditional(gauge):
     assert abs(slope.mean() - est[0, 1]) < 0.3 * se[0, 1]
     np.testing.assert_allclose(slope.std() / se[0, 1], 1.0, atol=0.2)
     lines = post.problems()
-    assert any(f"{'ab'[j]} held at its fitted value in 1 condition" in ln for ln in lines), lines
+    assert any(f"{'ab'[j]} held at its fitted value in 1 condition" in str(w) for w in lines), \
+        lines
+    held_w = [w for w in lines if w.kind == mrjax.WarningKind.HELD]
+    assert [w.parameters for w in held_w] == [("ab"[j],)]
     assert post.diagnostics()["r_hat_max"] < 1.05  # the held unknown's NaN left out
 
 
@@ -578,8 +605,12 @@ def test_diagnostics_flag_split_chains_and_divergences():
         upper=np.full((U, 1), 9.0), free=np.array([True]), noise="iid", prior={},
         sampler=Sampler(draws=N, chains=C), seed=0, timings={})
     lines = post.problems()
-    assert any("R-hat > 1.01" in ln and "'bad'" in ln for ln in lines), lines
-    assert any("1 divergent transition(s) in 1 condition " in ln for ln in lines), lines
+    assert any("R-hat > 1.01" in str(w) and "'bad'" in str(w) for w in lines), lines
+    assert any("1 divergent transition(s) in 1 condition " in str(w) for w in lines), lines
+    kinds = {w.kind: w for w in lines}
+    assert "bad" in kinds[mrjax.WarningKind.NOT_CONVERGED].conditions
+    assert kinds[mrjax.WarningKind.DIVERGENCES].conditions == ("bad",)
+    np.testing.assert_array_equal(post.unconverged(), [False, True])
     df = post.summary()
     ok = df[(df.variable == "a") & (df.condition == "ok")].iloc[0]
     assert ok.r_hat < 1.01 and ok.ess_bulk > 1000
@@ -590,14 +621,27 @@ def test_diagnostics_flag_split_chains_and_divergences():
 # The per-test kind on short simulated records
 
 
+#: The per-test posterior's settings of the tanh tests here (one compiled program).
+TANH = Sampler(draws=400, chains=2, warmup=400)
+
+
 @pytest.fixture(scope="module")
 def tanh_post():
     batch, truth = short_batch("kwok", noise_frac=0.02)
-    res = mrjax.fit("kwok", batch, seed=0)
+    res = mrjax.fit("kwok", batch, key=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        tp = mrjax.posterior(res, batch, draws=400, chains=2, warmup=400, seed=0)
+        tp = mrjax.posterior(res, batch, sampler=TANH, key=0)
     return batch, truth, res, tp
+
+
+def with_upper(res, **upper):
+    """`res` with the upper bounds of its search box in `upper` (name -> value [SI])."""
+    lo, hi = (np.array(b, float) for b in res.model.bounds) if res.bounds is None else (
+        np.array(res.bounds["lower"], float), np.array(res.bounds["upper"], float))
+    for n, v in upper.items():
+        hi[res.param_names.index(n)] = v
+    return dataclasses.replace(res, bounds={"lower": lo, "upper": hi})
 
 
 def covered(tp, truth, level=0.95):
@@ -677,11 +721,11 @@ def test_dynamic_model_intervals_cover_the_truth():
     likelihood on the swarm's view (the default for dynamic models; whole short records):
     every truth in its 99.9 % interval, at most one of 10 outside its 95 % one."""
     batch, truth = short_batch("dahl", noise_frac=0.02)
-    res = mrjax.fit("dahl", batch, seed=0)
+    res = mrjax.fit("dahl", batch, key=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         # the user's settings: their gradient left to the model, forward mode for a dynamic one
-        tp = mrjax.posterior(res, batch, seed=0,
+        tp = mrjax.posterior(res, batch, key=0,
                              sampler=mrjax.bayes.Sampler(draws=300, chains=2, warmup=300))
     assert tp.data == "view"
     assert tp.posterior.sampler.gradient == "forward"
@@ -692,28 +736,32 @@ def test_dynamic_model_intervals_cover_the_truth():
 
 def test_warnings_without_polish_and_at_bounds(tanh_post):
     batch, _, _, _ = tanh_post
-    res = mrjax.fit("kwok", batch, seed=0, method="pso", max_generations=5)
-    hi = dict(zip(res.param_names, res.theta.max(axis=0)))
-    with pytest.warns(RuntimeWarning) as rec:  # the fixture's settings: no new compilation
-        mrjax.posterior(res, batch, draws=400, chains=2, warmup=400,
-                        bounds=(None, {"c": hi["c"]}))
+    res = mrjax.fit("kwok", batch, key=0, swarm=mrjax.Swarm(max_generations=5), polish=None)
+    # the posterior's box is the fit's: the fit's upper bound of c moved to its largest c
+    res = with_upper(res, c=res.param("c").max())
+    with pytest.warns(RuntimeWarning) as rec:  # the start's warnings: no continuation needed
+        mrjax.posterior(res, batch, sampler=dataclasses.replace(TANH, continuations=0))
     text = " ".join(str(w.message) for w in rec)
     assert "without polish" in text
     assert "at bounds" in text and "c = " in text
+    kinds = {w.message.kind for w in rec if isinstance(w.message, mrjax.ResultWarning)}
+    assert {mrjax.WarningKind.DOUBTFUL_START, mrjax.WarningKind.AT_BOUND} <= kinds
 
 
 def test_per_test_bad_input(tanh_post):
     batch, _, res, _ = tanh_post
     with pytest.raises(InputError, match="draws must be a positive integer"):
-        mrjax.posterior(res, batch, draws=0)
+        mrjax.posterior(res, batch, sampler=Sampler(draws=0))
+    with pytest.raises(InputError, match="sampler must be a mrjax.Sampler"):
+        mrjax.posterior(res, batch, sampler={"draws": 100})
     with pytest.raises(InputError, match="noise must be one of"):
         mrjax.posterior(res, batch, noise="white")
     with pytest.raises(InputError, match="likelihood_data must be one of"):
         mrjax.posterior(res, batch, likelihood_data="both")
     with pytest.raises(InputError, match="not the fit's conditions"):
         mrjax.posterior(res, batch.subset([0]))
-    with pytest.raises(InputError, match="outside the bounds"):
-        mrjax.posterior(res, batch, bounds=(None, {"c": 0.5 * res.theta[0, 0]}))
+    with pytest.raises(InputError, match="outside the bounds"):  # e.g. an edited fit.json
+        mrjax.posterior(with_upper(res, c=0.5 * res.theta[0, 0]), batch)
 
 
 # --------------------------------------------------------------------------------------------
