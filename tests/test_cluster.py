@@ -135,6 +135,35 @@ def test_a_bad_chunk_names_its_tests_and_the_rest_is_kept(setup, tmp_path, monke
     assert (tmp_path / "o" / "fit.csv").read_bytes() == reference
 
 
+#: A model in a file of its own (its module, `mrjax_user_mine_<sha>`, exists in this process
+#: only).
+MINE = """
+import jax.numpy as jnp
+from mrjax.models import Model, Parameter
+
+def tanh_force(p, x, xdot, s):
+    return p.alpha * jnp.tanh(p.beta * xdot)
+
+Mine = Model("mine_tanh", [Parameter("alpha", "N", 0.0, 2500.0, linear=True),
+                           Parameter("beta", "s/m", 1.0, 1e4, log=True)], tanh_force)
+"""
+
+
+def test_a_model_from_a_file_travels_to_the_workers(setup, tmp_path):
+    """`mrjax fit --model path.py:Name` on a cluster: the file's code goes with the work (the
+    workers cannot import its module by name)."""
+    from mrjax.fitting._cluster import ClusterPool
+
+    (tmp_path / "mine.py").write_text(MINE)
+    model = mrjax.models.get(f"{tmp_path / 'mine.py'}:Mine")
+    with distributed.Client(setup[2], set_as_default=False) as client:
+        pool = ClusterPool(client)
+        work = pool.share({"model": model}, model=model)
+        got = dict(pool.map(lambda j, w: (w["model"].name, w["model"].param_names), [0], work,
+                            describe=str))
+    assert got == {0: ("mine_tanh", ("alpha", "beta"))}
+
+
 def test_cluster_settings_are_checked(setup, tmp_path):
     with pytest.raises(mrjax.InputError, match="cluster must be"):
         mrjax.Chunks(cluster=5)

@@ -308,7 +308,7 @@ def fit_in_chunks(model: AbstractModel, data: Batch | Source, run: Run, key: Any
         n_dev = pool.device_count(run.devices)
         whole, chunked = layout(model, data, run, key, pool, n_dev)
         jr, chunked = _journal(whole, chunked, run, n_dev)
-        work = pool.share(chunked)
+        work = pool.share(chunked, model=chunked.model)
         # std-errors once, after the retry, at the better of the two starts
         result = _first_pass(chunked, work, pool, jr, run.uncertainty and not retry,
                              run.progress)
@@ -338,6 +338,7 @@ def _first_pass(chunked: Chunked, work: Any, pool: Pool, jr: Journal | None,
         if bar is not None and parts:
             bar.update(sum(r.n_conditions for r in parts.values()))
         for j, res in pool.map(_fit_part, todo, work, uncertainty, describe=chunked.describe):
+            res = dataclasses.replace(res, model=chunked.model)  # this process's model
             if jr is not None:
                 jr.record(j, res)
             parts[j] = res
@@ -419,7 +420,8 @@ def _streamed(model: AbstractModel, source: Source, run: Run, n_dev: int, key: A
     group = max(1, budget // (READ_BATCHES * per_test))
     task_run = _task_run(run, pool)
     checked: dict[int, _Checked] = dict(pool.map(
-        _check_part, range(-(-C // group)), pool.share(_Check(model, task_run, source, group)),
+        _check_part, range(-(-C // group)),
+        pool.share(_Check(model, task_run, source, group), model=model),
         describe=lambda g: f"tests {g * group} to {min(C, (g + 1) * group) - 1}"))
     parts = [checked[g] for g in sorted(checked)]
     for part in parts:

@@ -25,12 +25,17 @@ dying, the task's own exception otherwise.
 from __future__ import annotations
 
 import contextlib
+import pickle
+import sys
 import uuid
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from .._errors import InputError
 from ..engine import Chunks
+from ..models import AbstractModel, source_of
 from ..parallel import resolve_devices
 from ._plan import DEFAULT_MEMORY_FRACTION, default_budget
 
@@ -49,7 +54,7 @@ CACHE_SETTINGS: tuple[str, ...] = JAX_SETTINGS[4:]
 class LocalPool:
     """The chunks run one after the other in this process; an error stops the pass."""
 
-    def share(self, obj: Any) -> Any:
+    def share(self, obj: Any, *, model: AbstractModel | None = None) -> Any:
         """`obj` itself."""
         return obj
 
@@ -75,8 +80,13 @@ class ClusterPool:
         self.client = client
         self.settings = jax_settings()
 
-    def share(self, obj: Any) -> Any:
-        """`obj` scattered once to every worker: a future the tasks take as an argument."""
+    def share(self, obj: Any, *, model: AbstractModel | None = None) -> Any:
+        """`obj` scattered once to every worker: a future the tasks take as an argument. With
+        a `model` defined in a file that the workers cannot import by name (`mrjax.models.get
+        ("path.py:Name")`), that file's code travels with `obj` (:class:`Pickled`)."""
+        modules = _file_modules(model) if model is not None else []
+        if modules:
+            obj = Pickled(obj, modules)
         return self.client.scatter(obj, broadcast=True, hash=False)
 
     def map(self, fn: Callable, js: Iterable[int], *args: Any,
@@ -189,7 +199,47 @@ def apply_settings(settings: dict[str, Any]) -> None:
 def run_task(settings: dict[str, Any], fn: Callable, j: int, *args: Any) -> Any:
     """A task on a worker: the client's JAX settings, then `fn(j, *args)`."""
     apply_settings(settings)
-    return fn(j, *args)
+    return fn(j, *(a.get() if isinstance(a, Pickled) else a for a in args))
+
+
+class Pickled:
+    """An object pickled with the code of `modules` by value (cloudpickle), for workers that
+    cannot import those modules by name; unpickled once in each process that uses it."""
+
+    def __init__(self, obj: Any, modules: list[ModuleType]):
+        import cloudpickle
+
+        for m in modules:
+            cloudpickle.register_pickle_by_value(m)
+        try:
+            self.data = cloudpickle.dumps(obj)
+        finally:
+            for m in modules:
+                cloudpickle.unregister_pickle_by_value(m)
+        self._obj: Any = None
+
+    def get(self) -> Any:
+        """The object."""
+        if self._obj is None:
+            self._obj = pickle.loads(self.data)
+        return self._obj
+
+    def __getstate__(self) -> dict[str, bytes]:
+        return {"data": self.data}
+
+    def __setstate__(self, state: dict[str, bytes]) -> None:
+        self.data, self._obj = state["data"], None
+
+
+def _file_modules(model: AbstractModel) -> list[ModuleType]:
+    """The module of a model defined in a file (`mrjax.models.source_of` kind `"file"`), which
+    other processes cannot import by name; none for any other model."""
+    src = source_of(model)
+    if src.get("kind") != "file":
+        return []
+    path = Path(str(src["file"])).resolve()
+    return [m for m in list(sys.modules.values())
+            if getattr(m, "__file__", None) and Path(m.__file__).resolve() == path]
 
 
 def _local_devices(devices: Any) -> int:
