@@ -167,8 +167,8 @@ def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path):
     code, stdout, stderr = run(["predict", "--fit", csv_run.out / "fit.json", csv_file,
                                 "--out", out])
     assert code == 0, stderr
-    assert set(outputs(out)) == {"predict.json", "predict.csv", "predict_loops.png",
-                                    "predict_rms_vs_current.png"}
+    assert set(outputs(out)) == {"predict.json", "predict.csv", "predicted.csv",
+                                    "predict_loops.png", "predict_rms_vs_current.png"}
     check_pngs(out, ["predict_loops.png", "predict_rms_vs_current.png"])
     doc = json.loads((out / "predict.json").read_text())
     assert doc["model"] == "kwok" and len(doc["conditions"]) == 4
@@ -184,7 +184,8 @@ def test_predict_with_generalized_fit(csv_run, csv_file, tmp_path):
     # a directory holding fit.json is accepted too; --no-plots writes no figures
     code, _, _ = run(["predict", "--fit", csv_run.out, csv_file, "--out", out / "again",
                       "--no-plots"])
-    assert code == 0 and outputs(out / "again") == ["predict.csv", "predict.json"]
+    assert code == 0 and outputs(out / "again") == ["predict.csv", "predict.json",
+                                                    "predicted.csv"]
 
 
 def test_predict_needs_a_generalized_block(utfsm_run, utfsm, tmp_path):

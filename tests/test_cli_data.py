@@ -167,7 +167,7 @@ def test_predict_and_compare_with_data_options(layouts, tmp_path):
                              "--out", out])
     assert code == 0, err
     assert outputs(out) == ["predict.csv", "predict.json", "predict_force_time.png",
-                                       "predict_rms_vs_current.png"]
+                            "predict_rms_vs_current.png", "predicted.csv"]
     doc = json.loads((out / "predict.json").read_text())
     assert [c["current_A"] for c in doc["conditions"]] == [0.5, 1.0]
     assert all(c["estimated"] == ["frequency", "amplitude"] for c in doc["conditions"])
