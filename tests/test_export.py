@@ -269,6 +269,23 @@ def test_one_parameter_set_exports(tmp_path):
     assert lib.inverse(s, x[0], v[0], 1e4, 1 / RATE) == 0.5
 
 
+def test_model_with_fixed_parameters_exports(tmp_path):
+    """A model with parameters held fixed (`mrjax.models.fix`) exports its free parameters'
+    laws; the C equals its force."""
+    from mrjax.models import fix
+
+    model = fix(get("modified_bouc_wen"), {"n": 2.0, "k0": 0.0})
+    p0 = dict(zip(get("modified_bouc_wen").param_names, TRUE_PARAMS["modified_bouc_wen"]))
+    gm = GeneralizedModel(model=model, laws={n: Law("poly", (p0[n], 0.3 * p0[n]))
+                                             for n in model.param_names},
+                          method="given", total_rms=0.0, current_range=(0.0, 1.0))
+    cm = ControllerModel.from_generalized(gm, motions=[(FREQ, AMP)])
+    _, x, v = sine(600)
+    want = np.asarray(dataclasses.replace(gm, model=cm.model).force(x, v, 1 / RATE, 0.6))
+    got = build(tmp_path, cm).force(x, v, 0.6, 1 / RATE)
+    assert np.max(np.abs(got - want)) <= STEP_TOL * np.sqrt(np.mean(want ** 2))
+
+
 # ------------------------------------------------------------------------------ the inverse
 @pytest.mark.parametrize("name", ["kwok", "modified_bouc_wen", "Tanh"])
 def test_inverse_reaches_and_saturates(tmp_path, name):

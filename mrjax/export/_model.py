@@ -25,7 +25,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InputError
 from ..data import Batch
 from ..generalize import GeneralizedModel, Law
-from ..models import SCHEMES, AbstractModel, from_source, get, resolve_model
+from ..models import SCHEMES, AbstractModel, fix, from_source, get, resolve_model
 
 #: Default sample interval [s] the sub-steps are chosen for when no records are given (a 1 kHz
 #: controller).
@@ -263,7 +263,13 @@ def laws_of(doc: Mapping[str, Any], where, model=None) -> GeneralizedModel:
             raise InputError(f"this fit has {len(conds)} parameter sets (one per test) and no "
                              f"laws over the current ('generalized' block): an export needs one "
                              f"model; {_FIT_HINT}")
-        m = get(model) if model is not None else from_source(doc["model"], doc.get("model_source"))
+        source = doc.get("model_source") or {}
+        if model is None:
+            m = from_source(doc["model"], source)
+        else:  # the user's model, with the parameters the fit held fixed
+            m = get(model)
+            held = source.get("fixed") if isinstance(source, Mapping) else None
+            m = fix(m.unfixed, held) if held and not m.fixed else m
         params = conds[0]["params"]
         laws = {n: Law("poly", (float(params[n]),)) for n in m.param_names}
         cur = conds[0].get("current_A")
