@@ -21,7 +21,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 import mrjax
-from mrjax._errors import InputError
+from mrjax import InputError, ResultWarning
 
 #: Numbers and non-numbers that a cell may be replaced with.
 ODD_CELLS = ("1e308", "1e400", "-1e999", "nan", "NaN", "inf", "-inf", "1_000", "0x10", "١٢",
@@ -222,7 +222,7 @@ def option_sets(draw: Callable) -> dict[str, str]:
 def ends_well(fn: Callable[[], Any]) -> str:
     """Run `fn`; it must return or raise one `InputError` line. Returns `"ok"` or
     `"error"`; anything else (another exception, a warning other than mrjax's
-    `RuntimeWarning`s about the data) fails."""
+    `ResultWarning`s about the data) fails."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
@@ -234,6 +234,6 @@ def ends_well(fn: Callable[[], Any]) -> str:
             outcome = "error"
     for w in caught:  # mrjax's sanity warnings, not numpy's floating-point ones
         text = str(w.message)
-        assert w.category is RuntimeWarning and "encountered" not in text, (
+        assert w.category in (RuntimeWarning, ResultWarning) and "encountered" not in text, (
             f"unexpected warning: {w.category.__name__}: {text}")
     return outcome

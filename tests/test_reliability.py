@@ -55,11 +55,16 @@ from mrjax.data import Condition, load, make_batch, paper_grid, paper_parameters
 from mrjax.fitting import save
 from mrjax.fitting import tests_problem as make_problem
 from mrjax.models import check_bounds, get
-from mrjax.objective import fitness, residuals, rms_per_condition
+from mrjax.objective import masked_rms, residuals, rms_per_condition
 
 GENERATIONS = 5
 #: The swarm alone for a fixed number of generations (`method="pso"` in fit.json).
 PSO = dict(swarm=mrjax.Swarm(generations=GENERATIONS), polish=None)
+
+
+def fitness(model, theta, x, xdot, dt, force, mask):
+    """The swarm's fitness of one particle on one condition: the masked RMS [N] of its force."""
+    return masked_rms(model.force(theta, x, xdot, dt), force, mask)
 
 
 # --------------------------------------------------------------------------------------------
