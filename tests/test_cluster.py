@@ -59,7 +59,7 @@ def setup(tmp_path_factory):
 
 def test_cluster_fit_is_the_one_process_fit(setup, tmp_path):
     """`mrjax fit --cluster`: the workers read their chunks from the Parquet files (the
-    check, the fit, the retry, the std-errors: one task per chunk each); same fit.csv."""
+    check, the fit, the retry with the std-errors: one task per chunk each); same fit.csv."""
     data, reference, cluster = setup
     code, _, err = run_cli(["fit", data, *OPTIONS, "--cluster", cluster.scheduler_address,
                             "--out", tmp_path / "c"])
@@ -165,6 +165,15 @@ def test_a_model_from_a_file_travels_to_the_workers(setup, tmp_path):
 
 
 def test_cluster_settings_are_checked(setup, tmp_path):
+    """The settings refused in one line; the plan's budget and devices asked of the workers:
+    half of a worker's memory limit per thread, their own device count."""
+    from mrjax.fitting._cluster import ClusterPool
+
+    with distributed.Client(setup[2], set_as_default=False) as client:
+        pool = ClusterPool(client)
+        limits = [w["memory_limit"] for w in client.scheduler_info()["workers"].values()]
+        assert pool.default_budget() == int(mrjax.fitting.DEFAULT_MEMORY_FRACTION * min(limits))
+        assert pool.device_count("all") == 1 and pool.device_count(2) == 2
     with pytest.raises(mrjax.InputError, match="cluster must be"):
         mrjax.Chunks(cluster=5)
     with pytest.raises(mrjax.InputError, match="devices is 'all' or a count"):

@@ -50,8 +50,8 @@ each test's SHA-256 (:func:`test_digests`); a chunk read again must match it, so
 changed during the fit fails with its tests named instead of fitting other data than was
 checked.
 
-**Where chunks run.** Every pass (the streamed check, the fit, the retry, the std-errors) maps
-a function of one chunk over the chunks through a pool (`mrjax.fitting._cluster`): in this
+**Where chunks run.** Every pass (the streamed check; the fit; the retry with the std-errors,
+each chunk read once for both) maps a function of one chunk over the chunks through a pool (`mrjax.fitting._cluster`): in this
 process, or, with `Chunks(cluster=...)`, one Dask task per chunk. What a chunk needs travels
 once, as one :class:`Chunked` (the model, the settings, the plan, every row's key, and where
 the tests are: the checked batch held in memory, or the `Source` index from which each worker
@@ -96,7 +96,7 @@ from ._plan import (
     results_bytes,
 )
 from ._problem import TestsProblem
-from ._result import FitResult, merge
+from ._result import FitResult, merge, retry_wins
 from ._retry import neighbours, retry_starts
 from ._run import Run, fit_chunk, make_run, problem_of, uncertainty_fields, wants_retry
 
@@ -314,13 +314,8 @@ def fit_in_chunks(model: AbstractModel, data: Batch | Source, run: Run, key: Any
                              run.progress)
         timings = dict(result.timings)
         if retry:
-            t1 = time.perf_counter()
-            result = _retry(result, chunked, work, pool)
-            timings["retry"] = time.perf_counter() - t1
-            if run.uncertainty:
-                t2 = time.perf_counter()
-                result = _uncertainty(result, chunked, work, pool)
-                timings["uncertainty"] = time.perf_counter() - t2
+            result, seconds = _retry(result, chunked, work, pool, run.uncertainty)
+            timings.update(seconds)
     timings["total"] = time.perf_counter() - t0
     return dataclasses.replace(result, timings=timings)
 
@@ -445,46 +440,51 @@ def _map_chunks(pool: Pool, fn: Callable, chunked: Chunked, *args: Any) -> list:
     return [out[j] for j in range(chunked.plan.n_chunks)]
 
 
-def _retry_part(j: int, chunked: Chunked, starts: tuple[np.ndarray, np.ndarray]
+def _retry_part(j: int, chunked: Chunked, starts: tuple[np.ndarray, ...], uncertainty: bool
                 ) -> dict[str, Any]:
-    """The retry of chunk `j` (a task) from its neighbours' optima (`starts`: the donors and
-    the optima of the whole batch): its polished parameters, RMS, NRMSE, steps and status."""
-    donors, theta = starts
+    """The retry of chunk `j` (a task) from its neighbours' optima (`starts`: the donors, the
+    optima and the RMS of the whole batch's first fit): its polished parameters, RMS, NRMSE,
+    steps and status; with `uncertainty`, the std-errors, intervals and identifiability at the
+    better of the two fits of each test (`retry_wins`, as `merge` keeps it); the seconds of
+    each stage."""
+    donors, theta, rms = starts
+    t0 = time.perf_counter()
     problem, padded, n = chunked.problem(j)
-    z0, _ = retry_starts(problem, donors, theta, padded[:n])
+    rows = padded[:n]
+    z0, _ = retry_starts(problem, donors, theta, rows)
     out = solve(problem, swarm=None, polish=chunked.run.polish, uncertainty=False, start=z0)
-    return {"theta": out.z[:n], "rms": out.rms[:n],
-            "nrmse": np.asarray(nrmse(out.rms, problem.batch.force, problem.placed_mask))[:n],
-            "polish_steps": np.asarray(out.steps, int)[:n], "polish_status": tuple(out.status[:n])}
+    part: dict[str, Any] = {
+        "theta": out.z[:n], "rms": out.rms[:n],
+        "nrmse": np.asarray(nrmse(out.rms, problem.batch.force, problem.placed_mask))[:n],
+        "polish_steps": np.asarray(out.steps, int)[:n], "polish_status": tuple(out.status[:n])}
+    t1 = time.perf_counter()
+    if uncertainty:
+        best = np.where(retry_wins(rms[rows], part["rms"])[:, None], part["theta"], theta[rows])
+        # padding (of the chunk and of the devices) repeats the last test
+        z = best[np.minimum(np.arange(problem.n_units), n - 1)]
+        part["uncertainty"] = uncertainty_fields(problem, z, n)
+    part["seconds"] = {"retry": t1 - t0, "uncertainty": time.perf_counter() - t1}
+    return part
 
 
-def _retry(result: FitResult, chunked: Chunked, work: Any, pool: Pool) -> FitResult:
+def _retry(result: FitResult, chunked: Chunked, work: Any, pool: Pool, uncertainty: bool
+           ) -> tuple[FitResult, dict[str, float]]:
     """Every test polished again from the best of its neighbours' optima (`retry_starts`),
-    chunk by chunk (the chunks' shapes: the first pass's compiled polish serves), and per test
-    the better of the two kept (`merge`)."""
+    chunk by chunk (the chunks' shapes: the first pass's compiled polish serves), per test the
+    better of the two kept (`merge`) and, with `uncertainty`, its std-errors (in the same
+    task: each chunk read once); the seconds of each stage, summed over the chunks."""
     donors = neighbours(result.current, result.frequency, result.amplitude)
-    starts = pool.share((donors, np.asarray(result.theta, float)))
-    parts = _map_chunks(pool, _retry_part, chunked, work, starts)
+    starts = pool.share((donors, np.asarray(result.theta, float),
+                         np.asarray(result.rms, float)))
+    parts = _map_chunks(pool, _retry_part, chunked, work, starts, uncertainty)
     status: tuple[Status, ...] = sum((p["polish_status"] for p in parts), ())
     again = dataclasses.replace(result, polish_status=status, **{
         k: np.concatenate([p[k] for p in parts]) for k in ("theta", "rms", "nrmse",
                                                             "polish_steps")})
-    return merge(result, again)
-
-
-def _uncertainty_part(j: int, chunked: Chunked, theta: np.ndarray) -> dict[str, Any]:
-    """The std-errors, intervals and identifiability of chunk `j` (a task) at `theta` (C, P)
-    of the whole batch."""
-    problem, padded, n = chunked.problem(j)
-    z = theta[padded]
-    if problem.n_units > z.shape[0]:  # device padding repeats the last condition
-        z = np.concatenate([z, np.repeat(z[-1:], problem.n_units - z.shape[0], axis=0)])
-    return uncertainty_fields(problem, z, n)
-
-
-def _uncertainty(result: FitResult, chunked: Chunked, work: Any, pool: Pool) -> FitResult:
-    """The std-errors, intervals and identifiability of `result`, chunk by chunk."""
-    theta = pool.share(np.asarray(result.theta, float))
-    parts = _map_chunks(pool, _uncertainty_part, chunked, work, theta)
-    return dataclasses.replace(result, **{k: np.concatenate([p[k] for p in parts])
-                                          for k in parts[0]})
+    merged = merge(result, again)
+    if uncertainty:
+        merged = dataclasses.replace(merged, **{
+            k: np.concatenate([p["uncertainty"][k] for p in parts])
+            for k in parts[0]["uncertainty"]})
+    stages = ("retry", "uncertainty") if uncertainty else ("retry",)
+    return merged, {k: sum(p["seconds"][k] for p in parts) for k in stages}

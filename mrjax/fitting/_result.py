@@ -460,11 +460,17 @@ def spread_warnings(result: FitResult) -> list[ResultWarning]:
         conditions=tests)]
 
 
+def retry_wins(first_rms: np.ndarray, retry_rms: np.ndarray) -> np.ndarray:
+    """Per test whether the retry is the better fit (lower RMS on the full record; NaN-safe:
+    a non-finite retry never wins), as :func:`merge` chooses."""
+    return np.asarray(retry_rms) < np.asarray(first_rms)
+
+
 def merge(first: FitResult, retry: FitResult) -> FitResult:
     """Per test the better (lower RMS on the full record) of the first fit and its retry, and
     `starts_rms` (C, 2): both RMS [N]. The swarm's figures (`pso_rms`, generations, history)
     stay the first fit's; the polish's (parameters, RMS, steps, status) are the winner's."""
-    better = retry.rms < first.rms  # NaN-safe: a non-finite retry never wins
+    better = retry_wins(first.rms, retry.rms)
     changes: dict[str, Any] = {}
     for name in ("theta", "rms", "nrmse", "polish_steps"):
         a, b = getattr(first, name), getattr(retry, name)
