@@ -120,7 +120,7 @@ def test_fit_csv_end_to_end(csv_run, csv_file, grid):
                                                                      .param_names)
     gm = mrjax.generalize.GeneralizedModel.from_dict(gen)
     res = mrjax.generalize.generalize(mrjax.fit("kwok", mrjax.data.load_batch(csv_file),
-                                                generations=5, seed=3),
+                                                swarm=mrjax.Swarm(generations=5), key=3),
                                       mrjax.data.load_batch(csv_file), method="two-step")
     for n in gm.param_names:
         assert gm.coefficients(n) == pytest.approx(res.coefficients(n), rel=1e-9, abs=1e-9)
