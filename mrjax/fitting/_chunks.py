@@ -51,14 +51,14 @@ changed during the fit fails with its tests named instead of fitting other data 
 checked.
 
 **Where chunks run.** Every pass (the streamed check; the fit; the retry with the std-errors,
-each chunk read once for both) maps a function of one chunk over the chunks through a pool (`mrjax.fitting._cluster`): in this
-process, or, with `Chunks(cluster=...)`, one Dask task per chunk. What a chunk needs travels
-once, as one :class:`Chunked` (the model, the settings, the plan, every row's key, and where
-the tests are: the checked batch held in memory, or the `Source` index from which each worker
-reads its own chunks from the files); the results come back to this process in chunk order
-(the journal written as they come). Each chunk's result depends only on its data, its keys
-and the chunk shape, so a cluster's result is bit for bit that of one process with the same
-chunks.
+each chunk read once for both) maps a function of one chunk over the chunks through a pool
+(`mrjax.fitting._cluster`): in this process, or, with `Chunks(cluster=...)`, one Dask task per
+chunk. What a chunk needs travels once, as one :class:`Chunked` (the model, the settings, the
+plan, every row's key, and where the tests are: the checked batch held in memory, or the
+`Source` index from which each worker reads its own chunks from the files); the results come
+back to this process in chunk order (the journal written as they come). Each chunk's result
+depends only on its data, its keys and the chunk shape, so a cluster's result is bit for bit
+that of one process with the same chunks.
 """
 
 from __future__ import annotations
