@@ -81,6 +81,10 @@ def fit_settings(args: argparse.Namespace) -> tuple[Swarm | None, Polish | None]
 def run(args: argparse.Namespace, out: OutputDir) -> int:
     """Run `mrjax fit` with parsed arguments into the claimed directory `out`; returns the exit
     code."""
+    if args.structure:  # a structure's response (`mrjax.structure`)
+        from ._structure import run_fit
+
+        return run_fit(args, out)
     model = get(args.model, fixed=parse_fixed(args.fixed))
     if args.generations is not None and args.max_generations is not None:
         raise InputError("give --generations (a fixed count) or --max-generations (a cap), "

@@ -106,6 +106,7 @@ def _fit_parser(sub, common) -> None:
     p.add_argument("--lag", type=parse_lag, default="fit", metavar="fit|none|RATE",
                    help="command filter du/dt = -eta (u - v) of time-varying commands: 'fit' "
                    "(default), 'none', or eta in 1/s to fix it (Spencer 1997: 190)")
+    _structure_options(p, fit=True)
     add_output_options(p, "fit")
     p.add_argument("--max-rows", type=positive_int, default=None, metavar="N",
                    help="print at most N rows of the result table (default all)")
@@ -133,9 +134,29 @@ def _predict_parser(sub, common) -> None:
                    "`mrjax fit --posterior` (its posterior.nc), e.g. 95, with its coverage of "
                    "the measured force: a per-test fit on records of the same tests, laws "
                    "(`--generalize ... --posterior`) on records at any current")
+    _structure_options(p, fit=False)
     add_output_options(p, "predict")
     add_data_options(p)
     p.set_defaults(run=("_predict", "run"))
+
+
+def _structure_options(p, *, fit: bool) -> None:
+    """A structure's fit (`mrjax.structure`): the structure, a periodic input, the input
+    between samples."""
+    if fit:
+        p.add_argument("--structure", choices=("sdof", "base"),
+                       help="identify the model inside a mass-on-element structure from the "
+                       "response to its input (output error): sdof, driven by a force_<unit> "
+                       "column; base, by a ground_acceleration_<unit> column; the response is "
+                       "displacement_<unit> (or acceleration_<unit>); the mass is an unknown "
+                       "m [kg] (--bounds m=LO:HI)")
+    p.add_argument("--periodic", metavar="N|DURATION",
+                   help="structure records of whole periods of a periodic input in steady "
+                   "state: N samples (or a duration such as 10.92s) per period; one period "
+                   "is simulated first and discarded (default: from rest)")
+    p.add_argument("--interpolation", choices=("fft", "linear", "zoh"),
+                   help="a structure's input between samples: band-limited (default), linear "
+                   "or zero-order hold")
 
 
 def _compare_parser(sub, common) -> None:

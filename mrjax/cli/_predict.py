@@ -107,6 +107,11 @@ def run(args: argparse.Namespace, out: OutputDir) -> int:
     exit code."""
     if args.band is not None:  # the posterior predictive band of a per-test fit
         return run_band(args, out)
+    from ._structure import is_structure_fit, run_predict
+
+    structure, doc = is_structure_fit(args.fit)
+    if structure:  # a structure's fit (`mrjax fit --structure`)
+        return run_predict(args, out, doc)
     gm, model = _read_model(args.fit, args.model)
     spec = data_spec(args)
     batch = load_batch(args.files, spec)

@@ -76,6 +76,8 @@ COLUMN_QUANTITIES: Mapping[str, str] = MappingProxyType(
         "command": "command",
         "frequency": "frequency",
         "amplitude": "length",
+        "acceleration": "acceleration",
+        "ground_acceleration": "acceleration",
     }
 )
 
@@ -107,8 +109,9 @@ def _parse(unit: str):
 
 
 def _canonical(unit: str) -> str:
-    """`mm_s` -> `mm/s` (column-suffix spelling to unit spelling); whitespace stripped."""
-    return str(unit).strip().replace("_", "/")
+    """`mm_s` -> `mm/s`, `m_s2` -> `m/s**2` (column-suffix spelling to unit spelling); whitespace
+    stripped."""
+    return re.sub(r"(?<=/s)(\d)$", r"**\1", str(unit).strip().replace("_", "/"))
 
 
 def _suffix(unit: str) -> str:
@@ -326,7 +329,10 @@ def parse_column(name: str, *, where: str = "") -> tuple[str, str | None]:
     col = str(name).strip()
     if col == "condition":
         return "condition", None
-    quantity, sep, unit = col.partition("_")
+    # the longest quantity the name starts with (`ground_acceleration_m_s2`)
+    quantity = max((q for q in COLUMN_QUANTITIES if col.startswith(q + "_")), key=len,
+                   default=col.partition("_")[0])
+    sep, unit = ("_", col[len(quantity) + 1:]) if col.startswith(quantity + "_") else ("", "")
     if quantity not in COLUMN_QUANTITIES:
         raise InputError(
             f"{prefix}unknown column {col!r}; accepted columns: condition and <quantity>_<unit> "

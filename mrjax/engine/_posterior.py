@@ -41,14 +41,16 @@ class PosteriorPlan:
     finish: Callable[[Posterior], Any]
 
 
-_PLANNERS: dict[type, Callable[..., PosteriorPlan]] = {}
+_PLANNERS: dict[type, tuple[Callable[..., PosteriorPlan], bool]] = {}
 
 
-def register_posterior(kind: type, planner: Callable[..., PosteriorPlan]) -> None:
-    """Let results of type `kind` have a posterior: `planner(result, batch, likelihood_data)`
+def register_posterior(kind: type, planner: Callable[..., PosteriorPlan], *,
+                       batch: bool = True) -> None:
+    """Let results of type `kind` have a posterior: `planner(result, data, likelihood_data)`
     returns their :class:`PosteriorPlan` (`likelihood_data` `"record"`, `"view"` or None for
-    the default)."""
-    _PLANNERS[kind] = planner
+    the default); `data` as a :class:`mrjax.data.Batch` (`batch=True`) or as the caller gave
+    it (a kind whose records are not damper tests)."""
+    _PLANNERS[kind] = (planner, batch)
 
 
 def sample(problem: AbstractProblem, z: np.ndarray, *, on_view: bool, sampler: Sampler,
@@ -104,7 +106,8 @@ def posterior(
     bounds, and chains that did not converge. Raises :class:`mrjax.InputError` for impossible
     settings and for data that are not the fit's records.
     """
-    planner = next((_PLANNERS[t] for t in type(result).__mro__ if t in _PLANNERS), None)
+    planner, batch = next((_PLANNERS[t] for t in type(result).__mro__ if t in _PLANNERS),
+                          (None, True))
     if planner is None:
         raise InputError(f"posterior needs a mrjax.fit result (FitResult) or laws over the "
                          f"current (GeneralizedModel), got {type(result).__name__}")
@@ -113,7 +116,7 @@ def posterior(
                          f"{likelihood_data!r}")
     if sampler is not None and not isinstance(sampler, Sampler):
         raise InputError(f"sampler must be a mrjax.Sampler, got {type(sampler).__name__}")
-    plan = planner(result, as_batch(data), likelihood_data)
+    plan = planner(result, as_batch(data) if batch else data, likelihood_data)
     post = sample(plan.problem, plan.z, on_view=plan.on_view, sampler=sampler or Sampler(),
                   noise=noise, prior=prior, key=key, progress=progress)
     return plan.finish(post)
