@@ -33,7 +33,10 @@ CLI_PAGE = "reference/cli.md"
 #: A Sphinx role before inline code in rendered HTML (`:class:<code>Batch</code>`).
 SPHINX_ROLE = re.compile(r":(?:class|func|meth|attr|data|mod|obj|exc):(?=<code>)")
 #: Pages written by other work, joined to a nav section when the file exists: (section, title, path).
-OPTIONAL_PAGES = (("How-to guides", "Export to C and FMU", "how-to/export.md"),)
+OPTIONAL_PAGES = (("How-to guides", "Export to C and FMU", "how-to/export.md"),
+                  ("How-to guides", "From one machine to a cluster", "how-to/cluster.md"),
+                  ("How-to guides", "A structure's response", "how-to/structure.md"),
+                  ("How-to guides", "A campaign's posterior", "how-to/campaign-posterior.md"))
 
 
 # --- the public API -----------------------------------------------------------------------------
