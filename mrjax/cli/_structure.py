@@ -111,7 +111,7 @@ def run_fit(args: argparse.Namespace, out: OutputDir) -> int:
     fit.csv, the figure of measured against simulated response (and the posterior)."""
     from ..engine import posterior
     from ..models import get
-    from ..structure import fit
+    from ..structure import fit, stack, structure_problem
 
     given = [flag for k, flag in NOT_FOR_STRUCTURE.items() if getattr(args, k, None)]
     if given:
@@ -122,6 +122,7 @@ def run_fit(args: argparse.Namespace, out: OutputDir) -> int:
     bounds = _bounds(args.bounds, model)
     post = posterior_settings(args, ("m",) + tuple(model.param_names))
     swarm, polish = _settings(args)
+    structure_problem(model, structure, stack(records), bounds)  # the records' checks, before any work
     say(f"identifying {model.name} in a {structure.name} structure from {len(records)} "
         f"record{'s' if len(records) != 1 else ''} ({structure.response}, "
         f"{structure.interpolation.name} input"
