@@ -132,8 +132,14 @@ def test_simulate_against_scipy(model, kind, response):
 @pytest.fixture(scope="module")
 def bench(model):
     """A short known answer: two noisy periods of 1024 samples in steady state, the fit."""
-    st = ms.SDOF(period=P)
-    rec = simulated(model, multisine(P, 0), 2, st, label="train")
+    return noisy_fit(model, P)
+
+
+def noisy_fit(model, period: int):
+    """Two periods of a multisine of `period` samples in steady state, 4e-6 m of noise, and
+    the structure's fit: (structure, record, fit)."""
+    st = ms.SDOF(period=period)
+    rec = simulated(model, multisine(period, 0), 2, st, label="train")
     noise = 4e-6 * np.random.default_rng(1).standard_normal(rec.n)
     rec = dataclasses.replace(rec, response=rec.response + noise)
     res = ms.fit(model, rec, structure=st, swarm=mrjax.Swarm(n_particles=30, max_generations=60),
@@ -165,12 +171,7 @@ def test_posterior_covers_truth(model):
     """The posterior through the engine on a shorter record (two noisy periods of 256 samples:
     every leapfrog step integrates the structure, so the suite keeps it small), trees of at
     most 63 steps; its 99 % intervals cover the truth."""
-    st = ms.SDOF(period=256)
-    rec = simulated(model, multisine(256, 0), 2, st, label="train")
-    rec = dataclasses.replace(
-        rec, response=rec.response + 4e-6 * np.random.default_rng(1).standard_normal(rec.n))
-    res = ms.fit(model, rec, structure=st, swarm=mrjax.Swarm(n_particles=30, max_generations=60),
-                 key=0)
+    _, rec, res = noisy_fit(model, 256)
     post = mrjax.posterior(res, rec, sampler=mrjax.Sampler(draws=100, warmup=100, chains=2,
                                                            max_doublings=6, continuations=0),
                            key=0)

@@ -122,9 +122,11 @@ def run_fit(args: argparse.Namespace, out: OutputDir) -> int:
     bounds = _bounds(args.bounds, model)
     post = posterior_settings(args, ("m",) + tuple(model.param_names))
     swarm, polish = _settings(args)
-    structure_problem(model, structure, stack(records), bounds)  # the records' checks, before any work
-    say(f"identifying {model.name} in a {structure.name} structure from {len(records)} "
-        f"record{'s' if len(records) != 1 else ''} ({structure.response}, "
+    records = stack(records)
+    structure_problem(model, structure, records, bounds)  # the records' checks, before any work
+    n = len(records.labels)
+    say(f"identifying {model.name} in a {structure.name} structure from {n} "
+        f"record{'s' if n != 1 else ''} ({structure.response}, "
         f"{structure.interpolation.name} input"
         f"{f', period {structure.period}' if structure.period else ', from rest'})...")
     res = fit(model, records, structure=structure, swarm=swarm, polish=polish, bounds=bounds,
