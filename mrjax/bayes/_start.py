@@ -217,7 +217,7 @@ def gradient_error(target, prior, units, z0, L):
     approximate derivative, e.g. the L-stable scheme's implicit tangent) and central differences
     of its values (step `FD_STEP`, the derivative of the computed log-density, which an exact
     tangent gives), in the whitened coordinates `w` (`z = z0 + L w`), over `GRADIENT_PROBES`
-    standard normal points of every unit (non-finite ones skipped). Values only: an exact
+    standard normal points of every unit (non-finite ones skipped), per unit (U,). Values only: an exact
     tangent's gradient would be a second compiled gradient. NUTS stays exact with an approximate
     gradient (its leapfrog map is still reversible and volume-preserving), but its energy error
     no longer vanishes with the step: where the gradient is off, the step-size adaptation
@@ -236,7 +236,7 @@ def gradient_error(target, prior, units, z0, L):
         d = jnp.linalg.norm(jax.lax.map(probe, W), axis=-1)
         return jnp.max(jnp.where(jnp.isfinite(d), d, 0.0))
 
-    return jnp.max(jax.lax.map(lambda a: one(*a), (units, z0, L)))
+    return jax.lax.map(lambda a: one(*a), (units, z0, L))
 
 
 @eqx.filter_jit
