@@ -19,6 +19,8 @@ import mrjax
 from mrjax import InputError
 from mrjax.bayes import (
     Likelihood,
+    NUTS,
+    ChEES,
     LogNormal,
     Normal,
     Sampler,
@@ -525,6 +527,7 @@ def test_sampler_defaults_by_model_kind():
     assert (dyn.target_accept, dyn.gradient) == (0.8, "forward")
     assert (stat.target_accept, stat.gradient) == (0.9, "reverse")
     assert Sampler(target_accept=0.95).for_model(True).target_accept == 0.95
+    assert isinstance(s.kernel, NUTS)  # the default kernel, with the CLI's counts
     assert {k: getattr(s, k) for k in ("draws", "chains", "warmup")} == {
         k: POSTERIOR_DEFAULTS[k] for k in ("draws", "chains", "warmup")}
     with pytest.raises(InputError, match="target_accept must be in"):

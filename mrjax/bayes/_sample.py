@@ -377,19 +377,18 @@ def sample(
     (`Sampler.continuations`).
 
     **Arguments:** `likelihood` the problem's :class:`Likelihood`; `sampler` the
-    :class:`Sampler` (default `Sampler()`, its defaults chosen for the model's kind and the
-    number of units); `noise` `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`); `prior`
-    {name: prior} (see `mrjax.bayes.parse_prior`; default flat on the box); `key` an integer
-    seed or a PRNG key (each unit's chains use `fold_in(key, unit)`: same key, same draws);
-    `progress` a tqdm bar (None: only on a terminal).
+    :class:`Sampler` (default `Sampler()`, its defaults chosen for the model's kind); `noise`
+    `"iid"` or `"ar1"` (see `mrjax.bayes.block_loglik`); `prior` {name: prior} (see
+    `mrjax.bayes.parse_prior`; default flat on the box); `key` an integer seed or a PRNG key
+    (each unit's chains use `fold_in(key, unit)`: same key, same draws); `progress` a tqdm
+    bar (None: only on a terminal).
 
     **Returns:** a :class:`mrjax.bayes.Posterior` (`timings["mode"]`, `["sample"]` [s]).
 
     Raises :class:`mrjax.InputError` for bad settings, an unknown noise model or prior, or
     shapes that do not match.
     """
-    U = np.shape(likelihood.theta0)[0]
-    sampler = (sampler or Sampler()).for_model(likelihood.dynamic, U).check()
+    sampler = (sampler or Sampler()).for_model(likelihood.dynamic).check()
     noise = check_noise(noise)
     su = _checked(likelihood, noise, prior)
     t0 = time.perf_counter()

@@ -158,22 +158,17 @@ class ChEES(AbstractKernel):
         return -(-units // max(n_pages, 1))
 
 
-def default_kernel(dynamic: bool, units: int) -> AbstractKernel:
-    """The kernel `Sampler(kernel=None)` runs: :class:`ChEES` for a dynamic model's tests
-    (@@WHY@@), :class:`NUTS` otherwise (@@WHYNOT@@)."""
-    return ChEES() if dynamic and units > 1 else NUTS()
-
-
 class Sampler(eqx.Module):
     """Settings of the sampler (all static: a new value compiles a new program).
 
     **Fields:**
 
-    - `kernel`: :class:`NUTS` or :class:`ChEES`; None (default): :func:`default_kernel` for
-        the model's kind and the number of units (:meth:`for_model`).
-    - `draws`: draws kept per chain (after warmup); None: the kernel's default.
-    - `chains`: independent chains per unit; None: the kernel's default.
-    - `warmup`: adaptation steps per chain; None: the kernel's default.
+    - `draws`: draws kept per chain (after warmup); None: the kernel's default
+        (`NUTS`: 1,000; `ChEES`: 250).
+    - `chains`: independent chains per unit; None: the kernel's default (`NUTS`: 4;
+        `ChEES`: 16).
+    - `warmup`: adaptation steps per chain; None: the kernel's default (`NUTS`: 500;
+        `ChEES`: 300).
     - `target_accept`: the step-size adaptation's target acceptance rate (NUTS: the mean
         acceptance of each tree; ChEES: the harmonic mean over a unit's chains); None: the
         kernel's default for the model (:meth:`for_model`).
@@ -205,6 +200,7 @@ class Sampler(eqx.Module):
         Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential integration,
         e.g. the dynamic models). `None` (default): forward mode for a dynamic model and
         reverse mode for a static one (:meth:`for_model`).
+    - `kernel`: how the chains move: :class:`NUTS` (default) or :class:`ChEES`.
     """
 
     draws: int | None = eqx.field(static=True, default=None)
@@ -217,20 +213,25 @@ class Sampler(eqx.Module):
     gradient: str | None = eqx.field(static=True, default=None)
     continuations: int = eqx.field(static=True, default=CONTINUATIONS)
     thin: int = eqx.field(static=True, default=1)
-    kernel: AbstractKernel | None = eqx.field(static=True, default=None)
+    kernel: AbstractKernel = eqx.field(static=True, default=NUTS())
 
-    def for_model(self, dynamic: bool, units: int = 1) -> Sampler:
-        """Self with every None resolved for a model's kind and `units` units: the kernel
-        (:func:`default_kernel`), its draws, chains and warmup, `gradient` (`"forward"` for a
-        dynamic model: one sequential integration, which reverse mode stores and replays;
-        `"reverse"` for a static one) and the kernel's target acceptance."""
-        kernel = self.kernel if self.kernel is not None else default_kernel(dynamic, units)
-        pick = lambda v, d: d if v is None else v
+    def __post_init__(self):
+        # the counts not given are the kernel's (one that is no kernel is refused by `check`)
+        kernel = self.kernel if isinstance(self.kernel, AbstractKernel) else NUTS()
+        for name, default in (("draws", kernel.DRAWS), ("chains", kernel.CHAINS),
+                              ("warmup", kernel.WARMUP)):
+            if getattr(self, name) is None:
+                setattr(self, name, default)
+
+    def for_model(self, dynamic: bool) -> Sampler:
+        """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
+        for a dynamic model (one sequential integration, which reverse mode stores and
+        replays), `"reverse"` for a static one; the kernel's target acceptance for the
+        model's kind."""
         return dataclasses.replace(
-            self, kernel=kernel, draws=pick(self.draws, kernel.DRAWS),
-            chains=pick(self.chains, kernel.CHAINS), warmup=pick(self.warmup, kernel.WARMUP),
-            gradient=self.gradient or ("forward" if dynamic else "reverse"),
-            target_accept=pick(self.target_accept, kernel.target_accept(dynamic)))
+            self, gradient=self.gradient or ("forward" if dynamic else "reverse"),
+            target_accept=self.kernel.target_accept(dynamic) if self.target_accept is None
+            else self.target_accept)
 
     @property
     def lockstep(self) -> bool:
@@ -259,11 +260,12 @@ class Sampler(eqx.Module):
                              f"{self.continuations!r}")
         for name in ("draws", "chains", "warmup", "max_doublings", "thin"):
             v = getattr(self, name)
-            if v is None and name in ("draws", "chains", "warmup"):
-                continue
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
-        if self.lockstep and self.chains is not None and self.chains < 2:
+        if not isinstance(self.kernel, AbstractKernel):
+            raise InputError(f"kernel must be mrjax.bayes.NUTS() or mrjax.bayes.ChEES(), got "
+                             f"{self.kernel!r}")
+        if self.lockstep and self.chains < 2:
             raise InputError(f"ChEES needs at least 2 chains per unit, got {self.chains}")
         if self.target_accept is not None and not 0.0 < float(self.target_accept) < 1.0:
             raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
@@ -273,9 +275,6 @@ class Sampler(eqx.Module):
         if self.gradient not in (None, "reverse", "forward"):
             raise InputError(f"gradient must be None, 'reverse' or 'forward', got "
                              f"{self.gradient!r}")
-        if self.kernel is not None and not isinstance(self.kernel, AbstractKernel):
-            raise InputError(f"kernel must be mrjax.bayes.NUTS() or mrjax.bayes.ChEES(), got "
-                             f"{self.kernel!r}")
         return self
 
 # ------------------------------------------------------------------------------ progress
