@@ -133,16 +133,18 @@ def run_case(a: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        sampler = mrjax.Sampler(draws=a.draws, chains=a.chains,
-                                warmup=a.warmup or mrjax.Sampler().warmup)
+        kernel = mrjax.bayes.ChEES() if a.kernel == "chees" else mrjax.bayes.NUTS()
+        sampler = mrjax.Sampler(draws=a.draws, chains=a.chains, warmup=a.warmup, kernel=kernel)
         tp = mrjax.posterior(res, batch, sampler=sampler, noise=a.noise,
                              likelihood_data=a.data, key=0)
     wall = time.perf_counter() - t0
     post = tp.posterior
     iv = {n: post.interval(n).tolist() for n in post.names}
     return {"model": a.model, "tests": a.tests, "n_tests": len(post.labels), "noise": a.noise,
-            "data": tp.data, "draws": a.draws, "chains": a.chains,
-            "warmup": tp.posterior.sampler.warmup,
+            "data": tp.data, "kernel": a.kernel, "draws": tp.posterior.sampler.draws,
+            "chains": tp.posterior.sampler.chains, "warmup": tp.posterior.sampler.warmup,
+            "gradient_evaluations": int(np.sum(post.n_steps) + np.sum(post.warmup_steps)),
+            "rounds": post.rounds.tolist(),
             "target_accept": tp.posterior.sampler.target_accept,
             "import_s": t_import, "fit_s": t_fit, "posterior_s": wall,
             "process_s": time.perf_counter() - t_start, "diagnostics": post.diagnostics(),
@@ -626,6 +628,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--records", type=int, default=50)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--kernel", choices=("nuts", "chees"), default="nuts",
+                    help="case: the sampler's kernel")
     ap.add_argument("--warmup", type=int, default=None, help="default: the Sampler's")
     ap.add_argument("--model", default="kwok")
     ap.add_argument("--tests", default="all")

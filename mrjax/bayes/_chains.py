@@ -178,19 +178,40 @@ def _steps_fn(arg, n_leapfrog):
     return jnp.asarray(jnp.ceil(halton_sequence(arg, HALTON_BITS) * n_leapfrog), dtype=int)
 
 
-def _rewhiten(pos, z0, L):
-    """New coordinates from the positions `pos` (M, C, D) of a window's second half: centred
-    on their mean, whitened by their covariance (shrunk towards the identity)."""
-    P = pos.reshape(-1, pos.shape[-1])
-    m = P.shape[0]
-    mean = jnp.mean(P, axis=0)
-    cov = jnp.cov(P, rowvar=False).reshape(P.shape[-1], P.shape[-1])
-    cov = (m * cov + SHRINK * jnp.eye(P.shape[-1], dtype=P.dtype)) / (m + SHRINK)
+class _Moments(eqx.Module):
+    """Sums of the chains' positions `s1` (D,), of their outer products `s2` (D, D) and their
+    count `m` over a window's second half (the re-whitening's covariance)."""
+
+    s1: jax.Array
+    s2: jax.Array
+    m: jax.Array
+
+    @staticmethod
+    def zeros(D: int, dtype) -> _Moments:
+        return _Moments(jnp.zeros(D, dtype), jnp.zeros((D, D), dtype), jnp.zeros((), dtype))
+
+    def add(self, P, on) -> _Moments:
+        on = jnp.asarray(on, P.dtype)
+        return _Moments(self.s1 + on * P.sum(0), self.s2 + on * P.T @ P,
+                        self.m + on * P.shape[0])
+
+
+def _rewhiten(mom: _Moments, w, grad, z0, L):
+    """New coordinates from a window's moments: centred on the chains' mean, whitened by
+    their covariance (shrunk towards the identity with `SHRINK` pseudo-draws); the chains'
+    positions `w` (C, D) and log-density gradients moved into them (the density's value is
+    unchanged: `z` is). Returns `(w, grad, z0, L)`."""
+    D = w.shape[-1]
+    m = jnp.maximum(mom.m, 2.0)
+    mean = mom.s1 / m
+    cov = (mom.s2 - m * jnp.outer(mean, mean)) / (m - 1.0)
+    cov = (m * cov + SHRINK * jnp.eye(D, dtype=w.dtype)) / (m + SHRINK)
     Lc = jnp.linalg.cholesky(cov)
     ok = jnp.all(jnp.isfinite(Lc)) & jnp.all(jnp.isfinite(mean))
-    Lc = jnp.where(ok, Lc, jnp.eye(P.shape[-1], dtype=P.dtype))
+    Lc = jnp.where(ok, Lc, jnp.eye(D, dtype=w.dtype))
     mean = jnp.where(ok, mean, 0.0)
-    return mean, Lc, z0 + L @ mean, L @ Lc
+    w = jax.scipy.linalg.solve_triangular(Lc, (w - mean).T, lower=True).T
+    return w, grad @ Lc, z0 + L @ mean, L @ Lc
 
 
 def _unit_density(target, prior, unit, z0, L):
@@ -198,12 +219,25 @@ def _unit_density(target, prior, unit, z0, L):
     return lambda w: log_density(target, prior, unit, z0 + L @ w)
 
 
+def _windows(warmup: int):
+    """Per warmup step (host arrays): whether the chains' positions count towards the
+    re-whitening (second half of a window of `WINDOWS`), and whether the coordinates are
+    re-whitened after it (the last step of every window but the last)."""
+    ends = np.cumsum([max(int(round(f * warmup)), 2) for f in WINDOWS])
+    starts = np.concatenate([[0], ends[:-1]])
+    t = np.arange(int(ends[-1]))
+    win = np.searchsorted(ends, t, side="right")
+    collect = t - starts[win] >= (ends[win] - starts[win]) // 2
+    last = (t == ends[win] - 1) & (win < len(WINDOWS) - 1)
+    return collect, last
+
+
 def _lockstep_warmup(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
     """The ChEES warmup of one unit's chains: `(LockstepState, warmup leapfrog steps per
     chain)`. One ChEES adaptation (`blackjax.adaptation.chees_adaptation.base`: dual averaging
     of the step size on the chains' harmonic-mean acceptance, Adam on the log trajectory
-    length) runs through the windows of `WINDOWS`; after each window but the last the
-    coordinates are re-whitened by the chains' covariance (:func:`_rewhiten`) and the dual
+    length) runs through the windows of `WINDOWS` in one scan; after each window but the last
+    the coordinates are re-whitened by the chains' covariance (:func:`_rewhiten`) and the dual
     averaging starts again from the step size reached, the trajectory length kept."""
     import optax
     from blackjax.adaptation.chees_adaptation import base as chees_base
@@ -216,43 +250,45 @@ def _lockstep_warmup(target, prior, sampler: Sampler, progress: bool, unit, z0, 
     step_fn = dynamic_hmc.build_kernel(next_random_arg_fn=lambda i: i + 1,
                                        integration_steps_fn=_steps_fn)
     eye = jnp.ones(D, z0.dtype)
-    jkey, *wkeys = jax.random.split(key, 1 + len(WINDOWS))
+    jkey, wkey = jax.random.split(key)
     w = JITTER * jax.random.normal(jkey, (C, D), z0.dtype)
     ld0 = jax.vmap(_unit_density(target, prior, unit, z0, L))(w)
     w = jnp.where(jnp.isfinite(ld0)[:, None], w, 0.0)
-    lengths = [max(int(round(f * sampler.warmup)), 2) for f in WINDOWS]
+    ld = _unit_density(target, prior, unit, z0, L)
+    states = jax.vmap(lambda x: dynamic_hmc.init(x, ld, jnp.zeros((), int)))(w)
     ad = init(jnp.zeros((), int), jnp.asarray(FIRST_STEP, z0.dtype))
-    arg, warm = jnp.zeros(C, int), jnp.zeros((), int)
-    for i, n in enumerate(lengths):
+
+    def rewhiten(carry):
+        states, ad, z0, L, mom = carry
+        w, g, z0, L = _rewhiten(mom, states.position, states.logdensity_grad, z0, L)
+        fresh = init(ad.random_generator_arg, jnp.exp(ad.log_step_size_moving_average))
+        ad = fresh._replace(trajectory_length=ad.trajectory_length, optim_state=ad.optim_state)
+        return (states._replace(position=w, logdensity_grad=g), ad, z0, L,
+                _Moments.zeros(D, z0.dtype))
+
+    def one(carry, xs):
+        k, collect, last = xs
+        states, ad, z0, L, mom = carry
         ld = _unit_density(target, prior, unit, z0, L)
-        states = jax.vmap(lambda x, a: dynamic_hmc.init(x, ld, a))(w, arg)
+        new, info = jax.vmap(lambda kk, ss: step_fn(
+            kk, ss, ld, ad.step_size, eye, (ad.trajectory_length / ad.step_size,)))(
+            jax.random.split(k, C), states)
+        ad = update(ad, info.proposal.position, info.proposal.momentum, states.position,
+                    info.acceptance_rate, info.is_divergent, eye)
+        if progress:
+            tick(C + 0 * info.num_integration_steps[0])
+        carry = (new, ad, z0, L, mom.add(new.position, collect))
+        return jax.lax.cond(last, rewhiten, lambda c: c, carry), info.num_integration_steps[0]
 
-        def one(carry, k, ld=ld):
-            states, ad = carry
-            states_, info = jax.vmap(lambda kk, ss: step_fn(
-                kk, ss, ld, ad.step_size, eye, (ad.trajectory_length / ad.step_size,)))(
-                jax.random.split(k, C), states)
-            ad = update(ad, info.proposal.position, info.proposal.momentum, states.position,
-                        info.acceptance_rate, info.is_divergent, eye)
-            if progress:
-                tick(C + 0 * info.num_integration_steps[0])
-            return (states_, ad), (states_.position, info.num_integration_steps[0])
-
-        (states, ad), (pos, n_steps) = jax.lax.scan(one, (states, ad),
-                                                    jax.random.split(wkeys[i], n))
-        warm, w, arg = warm + jnp.sum(n_steps), states.position, states.random_generator_arg
-        step = jnp.exp(ad.log_step_size_moving_average)
-        n_leap = jnp.exp(ad.log_trajectory_length_moving_average
-                         - ad.log_step_size_moving_average)
-        if i < len(lengths) - 1:
-            mean, Lc, z0, L = _rewhiten(pos[n // 2:], z0, L)
-            w = jax.scipy.linalg.solve_triangular(Lc, (w - mean).T, lower=True).T
-            fresh = init(ad.random_generator_arg, step)  # the dual averaging from `step`
-            ad = fresh._replace(trajectory_length=ad.trajectory_length,
-                                optim_state=ad.optim_state)
-    lds, grads = jax.vmap(jax.value_and_grad(_unit_density(target, prior, unit, z0, L)))(w)
-    return LockstepState(z0=z0, L=L, position=w, logdensity=lds, grad=grads, arg=arg,
-                         step_size=step, n_leapfrog=n_leap), warm
+    collect, last = _windows(sampler.warmup)
+    (states, ad, z0, L, _), n_steps = jax.lax.scan(
+        one, (states, ad, z0, L, _Moments.zeros(D, z0.dtype)),
+        (jax.random.split(wkey, collect.size), jnp.asarray(collect), jnp.asarray(last)))
+    step = jnp.exp(ad.log_step_size_moving_average)
+    n_leap = jnp.exp(ad.log_trajectory_length_moving_average - ad.log_step_size_moving_average)
+    return LockstepState(z0=z0, L=L, position=states.position, logdensity=states.logdensity,
+                         grad=states.logdensity_grad, arg=states.random_generator_arg,
+                         step_size=step, n_leapfrog=n_leap), jnp.sum(n_steps)
 
 
 def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, key):

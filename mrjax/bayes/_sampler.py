@@ -121,16 +121,18 @@ class ChEES(AbstractKernel):
         chains' residuals and Jacobians); None: all units in one page up to
         `PAGE_CHAINS` chains, else as many pages of equal size as needed.
 
-    Defaults (`Sampler`): 16 chains x (300 warmup + 250 draws); target acceptance 0.651
-    (the optimum of jittered HMC).
+    Defaults (`Sampler`): 8 chains x (300 warmup + 500 draws); target acceptance 0.651
+    (the optimum of jittered HMC). The same 4,000 draws as 16 chains x 250 leave the
+    split R-hat of a well-mixed posterior above 1.01 about half the time (32 half-chains of
+    125 draws: its noise alone; `benchmarks/posterior.md`).
     """
 
     max_leapfrog: int = eqx.field(static=True, default=256)
     learning_rate: float = eqx.field(static=True, default=0.05)
     page: int | None = eqx.field(static=True, default=None)
 
-    DRAWS: ClassVar[int] = 250
-    CHAINS: ClassVar[int] = 16
+    DRAWS: ClassVar[int] = 500
+    CHAINS: ClassVar[int] = 8
     WARMUP: ClassVar[int] = 300
     #: Chains a default page holds at most.
     PAGE_CHAINS: ClassVar[int] = 1024
@@ -164,9 +166,9 @@ class Sampler(eqx.Module):
     **Fields:**
 
     - `draws`: draws kept per chain (after warmup); None: the kernel's default
-        (`NUTS`: 1,000; `ChEES`: 250).
+        (`NUTS`: 1,000; `ChEES`: 500).
     - `chains`: independent chains per unit; None: the kernel's default (`NUTS`: 4;
-        `ChEES`: 16).
+        `ChEES`: 8).
     - `warmup`: adaptation steps per chain; None: the kernel's default (`NUTS`: 500;
         `ChEES`: 300).
     - `target_accept`: the step-size adaptation's target acceptance rate (NUTS: the mean
