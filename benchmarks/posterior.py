@@ -637,7 +637,8 @@ def _render_kernels(rows: list[dict[str, Any]]) -> list[str]:
         ess = min(d["ess_bulk_min"], d["ess_tail_min"])
         table.append([r["model"], r["n_tests"], r["noise"], r["data"], r["kernel"],
                       f"{r['chains']} x ({r['warmup']} + {r['draws']})",
-                      f"{r['posterior_s']:.0f}", r["gradient_evaluations"],
+                      f"{r['posterior_s']:.0f}", f"{r['cpu_s']:.0f}" if "cpu_s" in r else "-",
+                      r["gradient_evaluations"],
                       f"{d['r_hat_max']:.4f}", f"{d['ess_bulk_min']:.0f}",
                       f"{d['ess_tail_min']:.0f}", f"{ess / r['posterior_s']:.2f}",
                       d["divergences"], sum(1 for x in r["rounds"] if x),
@@ -647,10 +648,12 @@ def _render_kernels(rows: list[dict[str, Any]]) -> list[str]:
             "Each row a cold process (`case --kernel`), the posterior stage alone (the fit from "
             "the cache), every test of the campaign in one call at the kernel's defaults "
             "(continuations included). Gradient evaluations: leapfrog steps of every chain "
-            "(warmup and draws of the last round of each test). ESS/s: the smallest bulk or "
-            "tail ESS over tests and variables per second of the wall time.", "",
+            "(warmup and draws of the last round of each test). CPU s: the process's user + "
+            "system time (the wall time of a shared machine stretches with its load). ESS/s: "
+            "the smallest bulk or tail ESS over tests and variables per second of the wall "
+            "time.", "",
             _md(["model", "tests", "noise", "data", "kernel", "chains x (warmup + draws)",
-                 "wall s", "gradient evaluations", "R-hat max", "ESS bulk min", "ESS tail min",
+                 "wall s", "CPU s", "gradient evaluations", "R-hat max", "ESS bulk min", "ESS tail min",
                  "min ESS/s", "divergences", "tests continued", "leapfrog/draw", "load"],
                 table), ""]
 
