@@ -624,6 +624,8 @@ def render(doc: dict[str, Any]) -> str:
                      "width view / record", "leapfrog/draw record", "leapfrog/draw view"],
                     rows), ""]
     out += _render_kernels(doc.get("kernels", []))
+    if doc.get("kernels_note"):
+        out += [f"- {line}" for line in doc["kernels_note"]] + [""]
     return "\n".join(out)
 
 
