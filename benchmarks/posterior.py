@@ -129,6 +129,8 @@ def cached_fit(model: str):
 def run_case(a: argparse.Namespace) -> dict[str, Any]:
     """One posterior in this (fresh) process: timings, diagnostics, interval widths."""
     t_start = time.perf_counter()
+    import jax
+
     import mrjax
 
     t_import = time.perf_counter() - t_start
@@ -150,7 +152,7 @@ def run_case(a: argparse.Namespace) -> dict[str, Any]:
             "data": tp.data, "kernel": a.kernel, "draws": tp.posterior.sampler.draws,
             "chains": tp.posterior.sampler.chains, "warmup": tp.posterior.sampler.warmup,
             "gradient_evaluations": int(np.sum(post.n_steps) + np.sum(post.warmup_steps)),
-            "rounds": post.rounds.tolist(),
+            "rounds": post.rounds.tolist(), "cpu_devices": jax.local_device_count(),
             "target_accept": tp.posterior.sampler.target_accept,
             "import_s": t_import, "fit_s": t_fit, "posterior_s": wall,
             "process_s": time.perf_counter() - t_start, "diagnostics": post.diagnostics(),

@@ -839,6 +839,8 @@ def test_cli_posterior_writes_files(tanh_post, tmp_path):
     (["--posterior", "--prior", "c"], "--prior expects NAME=KIND:A:B"),
     (["--posterior", "--prior", "cc=normal:1:1"], "did you mean 'c'"),
     (["--posterior", "--posterior-data", "all"], "--posterior-data must be one of"),
+    (["--posterior", "--kernel", "mala"], "--kernel must be one of nuts, chees"),
+    (["--kernel", "chees"], "--kernel needs --posterior"),
 ])
 def test_cli_bad_posterior_options(tmp_path, argv, match):
     """Impossible options: one error line, exit 2, nothing written, before any fit."""

@@ -25,6 +25,7 @@ from ._band import read_draws as read_draws
 from ._noise import NOISE_MODELS as NOISE_MODELS
 from ._noise import block_loglik as block_loglik
 from ._noise import check_noise as check_noise
+from ._noise import lag_grams as lag_grams
 from ._noise import linear_marginal as linear_marginal
 from ._priors import LogNormal as LogNormal
 from ._priors import Normal as Normal

@@ -270,8 +270,8 @@ def _lockstep_warmup(target, prior, sampler: Sampler, progress: bool, unit, z0, 
         k, collect, last = xs
         states, ad, z0, L, mom = carry
         ld = _unit_density(target, prior, unit, z0, L)
-        new, info = jax.vmap(lambda kk, ss: step_fn(
-            kk, ss, ld, ad.step_size, eye, (ad.trajectory_length / ad.step_size,)))(
+        new, info = _over_chains(lambda kk, ss: step_fn(
+            kk, ss, ld, ad.step_size, eye, (ad.trajectory_length / ad.step_size,)), sampler)(
             jax.random.split(k, C), states)
         ad = update(ad, info.proposal.position, info.proposal.momentum, states.position,
                     info.acceptance_rate, info.is_divergent, eye)
@@ -302,8 +302,8 @@ def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, k
     eye = jnp.ones(st.z0.shape[-1], st.z0.dtype)
 
     def step(s, k):
-        s, info = jax.vmap(lambda kk, ss: kernel(kk, ss, logdensity, st.step_size, eye,
-                                                 (st.n_leapfrog,)))(k, s)
+        s, info = _over_chains(lambda kk, ss: kernel(kk, ss, logdensity, st.step_size, eye,
+                                                     (st.n_leapfrog,)), sampler)(k, s)
         return s, (info.is_divergent, info.num_integration_steps, info.acceptance_rate)
 
     def one(s, ks):  # `thin` steps, the last kept
@@ -324,10 +324,26 @@ def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, k
     return jax.tree.map(lambda a: jnp.swapaxes(a, 0, 1), trace), after
 
 
-def _over_units(fn, n_args: int):
-    """`fn` vmapped over units, its unit axis sharded over the CPU devices where there are
-    several (the page padded to a multiple of their count by the caller)."""
-    batched = jax.vmap(fn)
+def _over_chains(step, sampler: Sampler):
+    """One lockstep step `step(key, state)` of every chain of a unit: vmapped, or (`Sampler.
+    vectorize` `"none"`) one chain after another, where a chain's residuals already fill the
+    CPU's caches (a static model on a long record: a batch of chains only adds memory
+    traffic)."""
+    if vectorized(sampler) != "none":
+        return jax.vmap(step)
+    return lambda keys, states: jax.lax.map(lambda a: step(*a), (keys, states))
+
+
+def _over_units(fn, n_args: int, sampler: Sampler):
+    """`fn` over the units of a page: vmapped (`Sampler.vectorize` `"all"`: every chain of
+    every unit in one batch) or mapped (`"chains"`: one unit's chains at a time, so that a
+    unit never waits for another's longer trajectories), the unit axis sharded over the CPU
+    devices where there are several (the page padded to a multiple of their count by the
+    caller)."""
+    if vectorized(sampler) == "all":
+        batched = jax.vmap(fn)
+    else:
+        batched = lambda *a: jax.lax.map(lambda x: fn(*x), a)
     n_dev = jax.local_device_count()
     if n_dev < 2:
         return batched
@@ -354,7 +370,7 @@ def run_lockstep(target, prior, sampler, progress, units, z0, L, keys):
         trace, after = _lockstep_draws(target, prior, sampler, progress, unit, st, skey)
         return trace, st.step_size, warm, after
 
-    trace, step, warm, after = _over_units(unit_fn, 4)(units, z0, L, keys)
+    trace, step, warm, after = _over_units(unit_fn, 4, sampler)(units, z0, L, keys)
     return (*_finish(target, prior, units, trace, keys), step, warm, after)
 
 
@@ -367,5 +383,5 @@ def extend_lockstep(target, prior, sampler, progress, units, state, keys):
         return _lockstep_draws(target, prior, sampler, progress, unit, st,
                                jax.random.fold_in(k[0], 2))
 
-    trace, after = _over_units(unit_fn, 3)(units, state, keys)
+    trace, after = _over_units(unit_fn, 3, sampler)(units, state, keys)
     return (*_finish(target, prior, units, trace, keys), after)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._errors import InputError
 from ._chains import LockstepState, extend_lockstep, run_chains, run_lockstep
-from ._noise import check_noise
+from ._noise import check_noise, lag_grams
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
 from ._sampler import BAR, Sampler
@@ -147,6 +147,8 @@ def _at_mode(lk: Likelihood, su: _Setup, st, every, target: Target, z0, L) -> _P
                     hi=jnp.asarray(st.hi[:, moved]), soft=jnp.asarray(st.soft[:, moved]),
                     log=jnp.asarray(st.log[:, moved]), theta=jnp.asarray(su.theta0),
                     regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians),
+                    grams=tuple(lag_grams(J[..., lin], m) for J, m in zip(st.jacobians,
+                                                                          st.masks)),
                     masks=tuple(jnp.asarray(m) for m in st.masks))
 
     z, m = laplace(*jax.device_get(find_mode(target, su.prior_data, arrays(every, []),
