@@ -9,9 +9,8 @@ from typing import Any
 
 from .._errors import InputError
 from ._common import use_agg
-from ._parse import KERNELS
+from ._parse import KERNELS, say
 from ._parse import POSTERIOR_DEFAULTS as DEFAULTS
-from ._parse import say
 
 
 @dataclasses.dataclass(frozen=True)
