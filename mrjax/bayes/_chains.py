@@ -336,14 +336,13 @@ def _over_chains(step, sampler: Sampler):
 
 def _over_units(fn, n_args: int, sampler: Sampler):
     """`fn` over the units of a page: vmapped (`Sampler.vectorize` `"all"`: every chain of
-    every unit in one batch) or mapped (`"chains"`: one unit's chains at a time, so that a
-    unit never waits for another's longer trajectories), the unit axis sharded over the CPU
-    devices where there are several (the page padded to a multiple of their count by the
-    caller)."""
-    if vectorized(sampler) == "all":
-        batched = jax.vmap(fn)
-    else:
-        batched = lambda *a: jax.lax.map(lambda x: fn(*x), a)
+    every unit in one batch, the unit axis sharded over the CPU devices where there are
+    several, the page padded to a multiple of their count by the caller) or mapped (one
+    unit at a time, so that a unit never waits for another's longer trajectories; the caller
+    gives each device pages of its own)."""
+    if vectorized(sampler) != "all":  # the pages spread over the devices by the caller
+        return lambda *a: jax.lax.map(lambda x: fn(*x), a)
+    batched = jax.vmap(fn)
     n_dev = jax.local_device_count()
     if n_dev < 2:
         return batched

@@ -18,7 +18,7 @@ from ._chains import LockstepState, extend_lockstep, run_chains, run_lockstep
 from ._noise import check_noise, lag_grams
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._sampler import BAR, Sampler
+from ._sampler import BAR, Sampler, vectorized
 from ._start import (
     GRADIENT_TOL,
     Target,
@@ -281,11 +281,14 @@ def _page_size(sampler: Sampler, n: int, first: int | None) -> int:
     """Units per page for `n` units: the kernel's page (:meth:`ChEES.page_size`), in a
     continuation (`first` the first round's page) the smallest power of two that holds them,
     at most `first` (few compiled shapes); a multiple of the CPU devices the units are
-    sharded over."""
+    sharded over where they are vmapped, else at most an equal share of the units per device
+    (each device runs pages of its own, side by side)."""
     page = sampler.kernel.page_size(n, sampler.chains)
     if first is not None:
         page = min(first, 1 << (n - 1).bit_length())
     d = jax.local_device_count()
+    if vectorized(sampler) != "all":  # units mapped: at least one page per device
+        return max(1, min(page, -(-n // d)))
     return -(-page // d) * d
 
 
@@ -298,20 +301,26 @@ def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarr
     pages = _pages(rows.size, page)
     steps = sampler.draws + (0 if state is not None else sampler.warmup)
     bar = _bar(show, steps * len(pages) * page * sampler.chains)
+    devices = jax.local_devices() if vectorized(sampler) != "all" else []
     outs = []
     try:
-        for idx in pages:
+        for i, idx in enumerate(pages):  # dispatched without waiting: pages on several
+            # devices run side by side
             r = rows[idx]
-            units = jax.tree.map(lambda a: a[r], prep.units)
+            own = (jax.tree.map(lambda a: a[r], prep.units), keys[idx],
+                   (jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r])) if state is None
+                   else jax.tree.map(lambda a: a[idx], state))
+            if len(devices) > 1:
+                own = jax.device_put(own, devices[i % len(devices)])
+            units, k, rest = own
             if state is None:
-                out = run_lockstep(prep.target, su.prior_data, sampler, show, units,
-                                   jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r]), keys[idx])
+                out = run_lockstep(prep.target, su.prior_data, sampler, show, units, *rest, k)
             else:
-                out = extend_lockstep(prep.target, su.prior_data, sampler, show, units,
-                                      jax.tree.map(lambda a: a[idx], state), keys[idx])
-            out = jax.device_get(jax.block_until_ready(out))
-            n_real = len(np.unique(idx))
-            outs.append(jax.tree.map(lambda a: a[:n_real], out))
+                out = extend_lockstep(prep.target, su.prior_data, sampler, show, units, rest,
+                                      k)
+            outs.append((len(np.unique(idx)), out))
+        outs = [jax.tree.map(lambda a: a[:n], jax.device_get(jax.block_until_ready(out)))
+                for n, out in outs]
     finally:
         BAR[0] = None
         if bar is not None:

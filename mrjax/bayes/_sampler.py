@@ -111,9 +111,10 @@ class ChEES(AbstractKernel):
     """ChEES-HMC (Hoffman, Radul & Sountsov 2021; `blackjax.chees_adaptation`): jittered HMC
     whose chains of one unit share a step size and a trajectory length, tuned from all of
     them at every warmup step (the step size by dual averaging on their harmonic-mean
-    acceptance, the length by Adam on the ChEES criterion), so that all the chains of all the
-    units of a page move in lockstep in one vmapped batch, one leapfrog step each per batch
-    step. Each unit's metric is the inverse Hessian at its mode, re-estimated during the warmup
+    acceptance, the length by Adam on the ChEES criterion), so that the chains of a unit, and
+    with `Sampler.vectorize` `"all"` all the chains of all the units of a page, move in
+    lockstep in one vmapped batch, one leapfrog step each per batch step. Each unit's
+    metric is the inverse Hessian at its mode, re-estimated during the warmup
     from its chains' covariance (`mrjax.bayes._chains.WINDOWS`: the coordinates re-whitened,
     a dense mass matrix per unit). Its continuations extend the chains of the units that
     missed (no new warmup) unless they diverged.
@@ -192,8 +193,12 @@ class Sampler(eqx.Module):
         batch ends, so where one chain's residuals already fill the vector units (a static
         model on a record) the batch only adds work (`benchmarks/posterior.md`). With
         several CPU devices the chains of a unit are also spread over them
-        (:func:`chain_devices`). (ChEES always vmaps every chain of a page, its units
-        sharded over several CPU devices.)
+        (:func:`chain_devices`). ChEES: `"all"` vmaps every chain of every unit of a page
+        (its units sharded over several CPU devices), `"chains"` vmaps the chains of one unit
+        at a time, `"none"` steps them one after another (still in lockstep: one step size
+        and trajectory length per unit); `None`: `"all"` on an accelerator or for a
+        forward-mode gradient, else `"none"` (a static model's record: a batch of chains
+        only adds memory traffic, measured in `benchmarks/posterior.md`).
     - `continuations`: at most this many further rounds for the units whose chains missed
         R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged; what still misses is
         warned about (`Posterior.rounds` says how many rounds each unit took). NUTS: round r
