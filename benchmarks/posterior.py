@@ -640,6 +640,7 @@ def _render_kernels(rows: list[dict[str, Any]]) -> list[str]:
         d = r["diagnostics"]
         ess = min(d["ess_bulk_min"], d["ess_tail_min"])
         table.append([r["model"], r["n_tests"], r["noise"], r["data"], r["kernel"],
+                      r.get("cpu_devices", 1), r.get("version", "-"),
                       f"{r['chains']} x ({r['warmup']} + {r['draws']})",
                       f"{r['posterior_s']:.0f}", f"{r['cpu_s']:.0f}" if "cpu_s" in r else "-",
                       r["gradient_evaluations"],
@@ -656,7 +657,8 @@ def _render_kernels(rows: list[dict[str, Any]]) -> list[str]:
             "system time (the wall time of a shared machine stretches with its load). ESS/s: "
             "the smallest bulk or tail ESS over tests and variables per second of the wall "
             "time.", "",
-            _md(["model", "tests", "noise", "data", "kernel", "chains x (warmup + draws)",
+            _md(["model", "tests", "noise", "data", "kernel", "CPU devices", "code",
+                 "chains x (warmup + draws)",
                  "wall s", "CPU s", "gradient evaluations", "R-hat max", "ESS bulk min", "ESS tail min",
                  "min ESS/s", "divergences", "tests continued", "leapfrog/draw", "load"],
                 table), ""]

@@ -319,11 +319,11 @@ KERNELS = {"nuts": (1000, 4, 500), "chees": (500, 8, 300)}
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
     """Register `--posterior` and its options on the `mrjax fit` parser."""
-    g = p.add_argument_group("posterior (Bayesian identification by NUTS)")
+    g = p.add_argument_group("posterior (Bayesian identification by NUTS or ChEES-HMC)")
     g.add_argument("--posterior", action="store_true",
                    help="after the fit, sample the posterior of every test's parameters "
                    "(with --generalize: of the laws' coefficients) "
-                   "(NUTS, blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
+                   "(blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
                    "entry in fit.json and figures")
     g.add_argument("--kernel", metavar="|".join(KERNELS),
                    help="how the chains move: nuts (each chain on its own) or chees "
