@@ -4,6 +4,7 @@
     nice -n 10 python -m benchmarks.posterior speed [--mbw-all]
     nice -n 10 python -m benchmarks.posterior views
     python -m benchmarks.posterior mbw-tests [--draws 200 --jobs 2]   # MBW, each UTFSM test
+    nice -n 10 python -m benchmarks.posterior kernels [--model kwok --noise ar1]  # NUTS / ChEES
     python -m benchmarks.posterior render          # posterior.md from posterior.json
 
 1. **Calibration** (known answer, in one process): `--records` short sine records (1-2 Hz,
@@ -24,6 +25,11 @@
    (AR(1), the view, 4 chains x (`--draws` + `--draws`)), `--jobs` at a time.
 4. **Record or view**: the same posteriors on the full records and on the swarm's view
    (cost, and the ratio of the 95 % interval widths).
+
+5. **Kernels** (`kernels`): the posterior of every UTFSM test in one call, cold, with NUTS
+   (each chain on its own, 4 x (500 + 1000)) and with ChEES-HMC (every chain of every test in
+   lockstep, 8 x (300 + 500)), continuations included: wall, gradient evaluations, R-hat,
+   ESS, ESS per second, divergences.
 
 Writes `benchmarks/posterior.json` (sections merged) and `benchmarks/posterior.md`.
 """
@@ -123,6 +129,8 @@ def cached_fit(model: str):
 def run_case(a: argparse.Namespace) -> dict[str, Any]:
     """One posterior in this (fresh) process: timings, diagnostics, interval widths."""
     t_start = time.perf_counter()
+    import jax
+
     import mrjax
 
     t_import = time.perf_counter() - t_start
@@ -133,16 +141,18 @@ def run_case(a: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        sampler = mrjax.Sampler(draws=a.draws, chains=a.chains,
-                                warmup=a.warmup or mrjax.Sampler().warmup)
+        kernel = mrjax.bayes.ChEES() if a.kernel == "chees" else mrjax.bayes.NUTS()
+        sampler = mrjax.Sampler(draws=a.draws, chains=a.chains, warmup=a.warmup, kernel=kernel)
         tp = mrjax.posterior(res, batch, sampler=sampler, noise=a.noise,
                              likelihood_data=a.data, key=0)
     wall = time.perf_counter() - t0
     post = tp.posterior
     iv = {n: post.interval(n).tolist() for n in post.names}
     return {"model": a.model, "tests": a.tests, "n_tests": len(post.labels), "noise": a.noise,
-            "data": tp.data, "draws": a.draws, "chains": a.chains,
-            "warmup": tp.posterior.sampler.warmup,
+            "data": tp.data, "kernel": a.kernel, "draws": tp.posterior.sampler.draws,
+            "chains": tp.posterior.sampler.chains, "warmup": tp.posterior.sampler.warmup,
+            "gradient_evaluations": int(np.sum(post.n_steps) + np.sum(post.warmup_steps)),
+            "rounds": post.rounds.tolist(), "cpu_devices": jax.local_device_count(),
             "target_accept": tp.posterior.sampler.target_accept,
             "import_s": t_import, "fit_s": t_fit, "posterior_s": wall,
             "process_s": time.perf_counter() - t_start, "diagnostics": post.diagnostics(),
@@ -615,17 +625,56 @@ def render(doc: dict[str, Any]) -> str:
                 _md(["model", "tests", "noise", "chains x draws", "record s", "view s",
                      "width view / record", "leapfrog/draw record", "leapfrog/draw view"],
                     rows), ""]
+    out += _render_kernels(doc.get("kernels", []))
+    if doc.get("kernels_note"):
+        out += [f"- {line}" for line in doc["kernels_note"]] + [""]
     return "\n".join(out)
+
+
+def _render_kernels(rows: list[dict[str, Any]]) -> list[str]:
+    """The section of the `kernels` rows: NUTS against ChEES on one campaign."""
+    if not rows:
+        return []
+    table = []
+    for r in rows:
+        d = r["diagnostics"]
+        ess = min(d["ess_bulk_min"], d["ess_tail_min"])
+        table.append([r["model"], r["n_tests"], r["noise"], r["data"], r["kernel"],
+                      r.get("cpu_devices", 1), r.get("version", "-"),
+                      f"{r['chains']} x ({r['warmup']} + {r['draws']})",
+                      f"{r['posterior_s']:.0f}", f"{r['cpu_s']:.0f}" if "cpu_s" in r else "-",
+                      r["gradient_evaluations"],
+                      f"{d['r_hat_max']:.4f}", f"{d['ess_bulk_min']:.0f}",
+                      f"{d['ess_tail_min']:.0f}", f"{ess / r['posterior_s']:.2f}",
+                      d["divergences"], sum(1 for x in r["rounds"] if x),
+                      f"{d['leapfrog_per_draw']:.1f}",
+                      "-" if "load" not in r else f"{r['load'][0]:.1f} -> {r['load'][1]:.1f}"])
+    return ["## Kernels: NUTS per chain against ChEES-HMC in lockstep (issue 42)", "",
+            "Each row a cold process (`case --kernel`), the posterior stage alone (the fit from "
+            "the cache), every test of the campaign in one call at the kernel's defaults "
+            "(continuations included). Gradient evaluations: leapfrog steps of every chain "
+            "(warmup and draws of the last round of each test). CPU s: the process's user + "
+            "system time (the wall time of a shared machine stretches with its load). ESS/s: "
+            "the smallest bulk or tail ESS over tests and variables per second of the wall "
+            "time.", "",
+            _md(["model", "tests", "noise", "data", "kernel", "CPU devices", "code",
+                 "chains x (warmup + draws)",
+                 "wall s", "CPU s", "gradient evaluations", "R-hat max", "ESS bulk min", "ESS tail min",
+                 "min ESS/s", "divergences", "tests continued", "leapfrog/draw", "load"],
+                table), ""]
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=("calibration", "speed", "views", "cost", "render", "case",
+                                     "kernels",
                                      "mbw-tests"))
     ap.add_argument("--jobs", type=int, default=2, help="mbw-tests: processes at a time")
     ap.add_argument("--records", type=int, default=50)
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--chains", type=int, default=4)
+    ap.add_argument("--kernel", choices=("nuts", "chees"), default="nuts",
+                    help="case: the sampler's kernel")
     ap.add_argument("--warmup", type=int, default=None, help="default: the Sampler's")
     ap.add_argument("--model", default="kwok")
     ap.add_argument("--tests", default="all")
@@ -663,6 +712,9 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(cold(model="modified_bouc_wen", noise="ar1", draws=a.mbw_draws,
                              warmup=a.mbw_draws, chains=a.chains))
         merge("speed", rows[1:])
+    elif a.what == "kernels":  # one campaign, NUTS then ChEES at their defaults
+        merge("kernels", [cold(model=a.model, noise=a.noise, kernel=k, draws=d, chains=c)
+                          for k, d, c in (("nuts", 1000, 4), ("chees", 500, 8))])
     elif a.what == "views":
         pairs = []
         for noise in ("iid", "ar1"):

@@ -18,6 +18,8 @@ from helpers import run_cli as run
 import mrjax
 from mrjax import InputError
 from mrjax.bayes import (
+    NUTS,
+    ChEES,
     Likelihood,
     LogNormal,
     Normal,
@@ -525,6 +527,7 @@ def test_sampler_defaults_by_model_kind():
     assert (dyn.target_accept, dyn.gradient) == (0.8, "forward")
     assert (stat.target_accept, stat.gradient) == (0.9, "reverse")
     assert Sampler(target_accept=0.95).for_model(True).target_accept == 0.95
+    assert isinstance(s.kernel, NUTS)  # the default kernel, with the CLI's counts
     assert {k: getattr(s, k) for k in ("draws", "chains", "warmup")} == {
         k: POSTERIOR_DEFAULTS[k] for k in ("draws", "chains", "warmup")}
     with pytest.raises(InputError, match="target_accept must be in"):
@@ -659,6 +662,29 @@ def test_tanh_intervals_cover_the_truth(tanh_post):
     d = tp.posterior.diagnostics()
     assert d["r_hat_max"] < 1.05 and d["divergences"] == 0
     assert tp.data == "record" and list(tp.n_scored) == list(res.n_samples)
+
+
+def test_chees_lockstep_covers_the_truth(tanh_post):
+    """Known answer for the lockstep kernel: ChEES-HMC (`Sampler(kernel=ChEES())` at its
+    defaults, 8 chains x (300 + 500)) on the simulated tanh tests covers the truth as NUTS
+    does (at most one of the 12 pairs outside its 95 % interval, none outside 99.9 %), with
+    R-hat <= 1.01, bulk and tail ESS >= 400 and no divergence; every chain of a unit takes
+    the same number of leapfrog steps at every draw (lockstep); same key, same draws."""
+    batch, truth, res, _ = tanh_post
+    sampler = Sampler(kernel=ChEES())
+    tp = mrjax.posterior(res, batch, sampler=sampler, key=0)
+    post = tp.posterior
+    assert (post.n_chains, post.n_draws, post.sampler.warmup) == (8, 500, 300)
+    assert covered(tp, truth).sum() >= 11, tp.table()
+    assert covered(tp, truth, 0.999).all(), tp.table()
+    d = post.diagnostics()
+    assert d["r_hat_max"] <= 1.01 and d["divergences"] == 0, d
+    assert min(d["ess_bulk_min"], d["ess_tail_min"]) >= 400, d
+    steps = post.n_steps
+    np.testing.assert_array_equal(steps, np.broadcast_to(steps[:, :1], steps.shape))
+    assert post.to_dict()["sampler"] == "blackjax ChEES"
+    again = mrjax.posterior(res, batch, sampler=sampler, key=0).posterior
+    np.testing.assert_array_equal(again.theta, post.theta)
 
 
 def test_predictive_band_covers_new_records(tanh_post):
@@ -813,6 +839,8 @@ def test_cli_posterior_writes_files(tanh_post, tmp_path):
     (["--posterior", "--prior", "c"], "--prior expects NAME=KIND:A:B"),
     (["--posterior", "--prior", "cc=normal:1:1"], "did you mean 'c'"),
     (["--posterior", "--posterior-data", "all"], "--posterior-data must be one of"),
+    (["--posterior", "--kernel", "mala"], "--kernel must be one of nuts, chees"),
+    (["--kernel", "chees"], "--kernel needs --posterior"),
 ])
 def test_cli_bad_posterior_options(tmp_path, argv, match):
     """Impossible options: one error line, exit 2, nothing written, before any fit."""

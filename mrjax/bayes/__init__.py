@@ -25,6 +25,7 @@ from ._band import read_draws as read_draws
 from ._noise import NOISE_MODELS as NOISE_MODELS
 from ._noise import block_loglik as block_loglik
 from ._noise import check_noise as check_noise
+from ._noise import lag_grams as lag_grams
 from ._noise import linear_marginal as linear_marginal
 from ._priors import LogNormal as LogNormal
 from ._priors import Normal as Normal
@@ -45,9 +46,11 @@ from ._result import PosteriorFront as PosteriorFront
 from ._result import arviz as arviz
 from ._sample import Likelihood as Likelihood
 from ._sample import sample as sample
+from ._sampler import NUTS as NUTS
+from ._sampler import ChEES as ChEES
 from ._sampler import Sampler as Sampler
 from ._sampler import chain_devices as chain_devices
 
-__all__ = ["ESS_MIN", "NOISE_MODELS", "RHAT_MAX", "Likelihood", "LogNormal", "Normal",
-           "Posterior", "PredictiveBand", "Sampler", "Uniform", "block_loglik", "parse_prior",
+__all__ = ["ESS_MIN", "NOISE_MODELS", "NUTS", "RHAT_MAX", "ChEES", "Likelihood", "LogNormal",
+           "Normal", "Posterior", "PredictiveBand", "Sampler", "Uniform", "block_loglik", "parse_prior",
            "predictive_band", "read_draws", "sample"]

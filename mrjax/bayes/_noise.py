@@ -89,35 +89,83 @@ def block_loglik(
     return -0.5 * jnp.sum(_base(mask, log_sigma, n_cont, v) + quad)
 
 
+def lag_grams(A: Float[ArrayLike, "*B R T L"], mask: Bool[ArrayLike, "*B R T"]
+              ) -> Float[Array, "*B R 4 L L"]:
+    """The sums of products of constant regressors `A` (..., R, T, L) over each record's
+    scored samples `mask` that the whitened regressors' Gram matrix is made of, for any AR(1)
+    coefficient (:func:`linear_marginal`): per record `[P0, P1, P2, Q]` (L, L) with
+    $P_0 = \\sum_c a_t a_t^T$, $P_1 = \\sum_c a_t a_{t-1}^T$, $P_2 = \\sum_c a_{t-1}
+    a_{t-1}^T$ over the samples `c` that follow a scored one, and $Q = \\sum a_t a_t^T$ over
+    the restarts. Computed once per unit: the sampler's every gradient then costs O(L^2) per
+    record for the Gram matrix instead of whitening every regressor."""
+    mask = jnp.asarray(mask)
+    A = jnp.where(mask[..., None], jnp.asarray(A), 0.0)
+    cont = mask[..., 1:] & mask[..., :-1]
+    restart = mask & ~jnp.concatenate([jnp.zeros_like(mask[..., :1]), cont], axis=-1)
+    a1 = jnp.where(cont[..., None], A[..., 1:, :], 0.0)
+    a0 = A[..., :-1, :]
+    gram = lambda x, y: jnp.einsum("...tl,...tk->...lk", x, y)
+    return jnp.stack([gram(a1, A[..., 1:, :]), gram(a1, a0),
+                      gram(jnp.where(cont[..., None], a0, 0.0), a0),
+                      gram(jnp.where(restart[..., None], A, 0.0), A)], axis=-3)
+
+
+def _whiten_adjoint(w, mask, v):
+    """The transpose of :func:`whiten`'s linear map applied to `w` (R, T)."""
+    if v is None:
+        return jnp.where(mask, w, 0.0)
+    rho, s = jnp.tanh(v), jnp.exp(-0.5 * log1m_tanh2(v))
+    cont = mask[:, 1:] & mask[:, :-1]
+    coef = jnp.concatenate([jnp.ones_like(w[:, :1]), jnp.where(cont, s, 1.0)], axis=1)
+    nxt = jnp.concatenate([jnp.where(cont, w[:, 1:], 0.0) * (rho * s),
+                           jnp.zeros_like(w[:, :1])], axis=1)
+    return jnp.where(mask, coef * w - nxt, 0.0)
+
+
+def _whitened_gram(G, v):
+    """Per record (R, L, L): the Gram matrix of the whitened regressors from their
+    :func:`lag_grams` `G` (R, 4, L, L)."""
+    if v is None:
+        return G[:, 0] + G[:, 3]
+    rho, s2 = jnp.tanh(v), jnp.exp(-log1m_tanh2(v))
+    P1 = G[:, 1]
+    return s2 * (G[:, 0] - rho * (P1 + jnp.swapaxes(P1, -1, -2)) + rho * rho * G[:, 2]) + G[:, 3]
+
+
 def linear_marginal(
-    blocks, regressors, log_sigma: Float[ArrayLike, " R"], v: Float[ArrayLike, ""] | None
+    blocks, regressors, log_sigma: Float[ArrayLike, " R"], v: Float[ArrayLike, ""] | None,
+    grams: tuple | None = None,
 ) -> tuple[Float[Array, ""], Float[Array, " L"], Float[Array, "L L"], Float[Array, " L"]]:
     """The likelihood with L linear unknowns integrated out, and their conditional.
 
     The residuals are affine in the unknowns $\\beta$ (L,): $r(\\beta) = r + A\\,\\delta$,
     $\\delta = \\beta - \\beta_0$, with `blocks` `((r (R_b, T_b), mask), ...)` at
-    $\\beta_0$ and `regressors` `(A (R_b, T_b, L), ...)` [N per unit of each unknown]. With a
-    flat prior on $\\beta$, the Gaussian integral over it is the likelihood at its
+    $\\beta_0$ and `regressors` `(A (R_b, T_b, L), ...)` [N per unit of each unknown], constant.
+    With a flat prior on $\\beta$, the Gaussian integral over it is the likelihood at its
     conditional mode times $(2\\pi)^{L/2} \\det(M)^{-1/2}$, $M = \\sum A_w^T A_w / \\sigma^2$
-    ($A_w$ the whitened regressors, :func:`whiten`).
+    ($A_w$ the whitened regressors, :func:`whiten`), $M$ from the regressors' :func:`lag_grams`
+    (`grams`, one per block; computed here when None).
 
     **Returns:** `(log marginal likelihood, delta_hat (L,), C (L, L), d (L,))`: the conditional
     of $\\delta$ is $N(\\hat\\delta, M^{-1})$ with $M^{-1} = D C^{-T} C^{-1} D$, $D$ =
     diag(`d`), $C$ the Cholesky factor of $D M D$ (a draw: $\\hat\\delta + d \\odot
     C^{-T} \\varepsilon$). The flat prior's density, constant, is left out.
     """
+    if grams is None:
+        grams = tuple(lag_grams(A, m) for (_, m), A in zip(blocks, regressors))
     ll, M, c, off = 0.0, 0.0, 0.0, 0
-    for (r, m), A in zip(blocks, regressors):
+    for (r, m), A, G in zip(blocks, regressors, grams):
         m = jnp.asarray(m)
         n = m.shape[0]
         ls = log_sigma[off:off + n]
         off += n
         w, n_cont = whiten(r, m, v)
-        Aw = jax.vmap(lambda a: whiten(a, m, v)[0], in_axes=-1, out_axes=-1)(A)
         iv = jnp.exp(-2.0 * ls)
         ll = ll - 0.5 * jnp.sum(_base(m, ls, n_cont, v) + iv * jnp.sum(w * w, axis=1))
-        M = M + jnp.einsum("rtl,r,rtk->lk", Aw, iv, Aw)
-        c = c + jnp.einsum("rtl,r,rt->l", Aw, iv, w)
+        M = M + jnp.einsum("rlk,r->lk", _whitened_gram(G, v), iv)
+        y = _whiten_adjoint(w, m, v)  # A_w^T w = A^T (W^T w)
+        c = c + jnp.einsum("rtl,rt->l", jnp.where(m[..., None], jnp.asarray(A), 0.0),
+                           iv[:, None] * y)
     d = 1.0 / jnp.sqrt(jnp.diagonal(M))
     C = jnp.linalg.cholesky(M * d[:, None] * d[None, :])
     y = jax.scipy.linalg.cho_solve((C, True), d * c)

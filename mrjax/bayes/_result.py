@@ -162,7 +162,7 @@ class Posterior:
         coords = {u: list(self.labels)}
         if R > 1:
             coords["record"] = list(self.row_labels or map(str, range(R)))
-        attrs = {"noise": self.noise, "seed": self.seed, "sampler": "blackjax NUTS",
+        attrs = {"noise": self.noise, "seed": self.seed, "sampler": self.sampler.kernel.name,
                  "warmup": int(self.sampler.warmup), "dense_mass": int(self.sampler.dense_mass),
                  "integrated_out": ", ".join(self.linear) or "none",
                  "prior": "; ".join(f"{k}: {v}" for k, v in self.prior.items()) or "flat on box"}
@@ -398,7 +398,7 @@ class Posterior:
                 entry[v] = recs[0] if len(recs) == 1 else recs
             units.append(entry)
         s = self.sampler
-        doc = {"sampler": "blackjax NUTS", "noise": self.noise, "draws": int(s.draws),
+        doc = {"sampler": s.kernel.name, "noise": self.noise, "draws": int(s.draws),
                "chains": int(s.chains), "warmup": int(s.warmup), "dense_mass": bool(s.dense_mass),
                "target_accept": None if s.target_accept is None else float(s.target_accept),
                "integrated_out": list(self.linear),

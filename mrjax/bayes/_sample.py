@@ -14,10 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._noise import check_noise
+from ._chains import LockstepState, extend_lockstep, run_chains, run_lockstep
+from ._noise import check_noise, lag_grams
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._sampler import BAR, Sampler, run_chains
+from ._sampler import BAR, Sampler, vectorized
 from ._start import (
     GRADIENT_TOL,
     Target,
@@ -146,6 +147,8 @@ def _at_mode(lk: Likelihood, su: _Setup, st, every, target: Target, z0, L) -> _P
                     hi=jnp.asarray(st.hi[:, moved]), soft=jnp.asarray(st.soft[:, moved]),
                     log=jnp.asarray(st.log[:, moved]), theta=jnp.asarray(su.theta0),
                     regressors=tuple(jnp.asarray(J[..., lin]) for J in st.jacobians),
+                    grams=tuple(lag_grams(J[..., lin], m) for J, m in zip(st.jacobians,
+                                                                          st.masks)),
                     masks=tuple(jnp.asarray(m) for m in st.masks))
 
     z, m = laplace(*jax.device_get(find_mode(target, su.prior_data, arrays(every, []),
@@ -173,10 +176,26 @@ def _at_mode(lk: Likelihood, su: _Setup, st, every, target: Target, z0, L) -> _P
                      np.linalg.cholesky(cov[:, keep][:, :, keep]), lo, hi, None)
 
 
-def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> _Prepared:
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Group:
+    """Units drawn with one log-density: `rows` of the likelihood's units, their
+    :class:`_Prepared` arrays (in the order of `rows`)."""
+
+    rows: np.ndarray
+    prep: _Prepared
+
+
+def _take(tree, rows):
+    """The units `rows` of a pytree of arrays with a leading unit axis."""
+    return jax.tree.map(lambda a: a[rows], tree)
+
+
+def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_Group]:
     """The start (`mrjax.bayes._start.start`: the optimum and the Gauss-Newton covariance of
     the residuals there, one unknown held per undetermined direction), moved onto the mode;
-    with an approximate derivative checked there and replaced by the exact one where off."""
+    with an approximate derivative checked there, unit by unit, and replaced by the exact one
+    in the units where it is off: those units form a group of their own (a campaign's other
+    units keep the cheaper derivative)."""
     free = su.free
     st = start(lk.residual, su.theta0, su.lo[:, free], su.hi[:, free], lk.data, free, noise,
                su.names, tuple(lk.gauge))
@@ -192,15 +211,26 @@ def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> _Prepa
     target = Target(residual=lk.residual, free=tuple(free[k] for k in every), rows=su.rows,
                     noise=noise, forward=sampler.gradient == "forward")
     prep = _at_mode(lk, su, st, every, target, z0, L)
+    rows = np.arange(su.theta0.shape[0])
     if lk.exact is None:
-        return prep
-    err = float(gradient_error(prep.target, su.prior_data, prep.units, jnp.asarray(prep.z0),
-                               jnp.asarray(prep.L)))
-    if not err <= GRADIENT_TOL:  # all again from the start, exactly: the approximate
-        # gradient's "mode" may be far from the posterior's
-        prep = _at_mode(lk, su, st, every, dataclasses.replace(target, residual=lk.exact),
-                        z0, L)
-    return dataclasses.replace(prep, gradient_error=err)
+        return [_Group(rows, prep)]
+    err = np.asarray(gradient_error(prep.target, su.prior_data, prep.units,
+                                    jnp.asarray(prep.z0), jnp.asarray(prep.L)))
+    bad = ~(err <= GRADIENT_TOL)
+    groups = []
+    if not bad.all():
+        groups.append(_Group(rows[~bad], _Prepared(
+            prep.target, _take(prep.units, ~bad), prep.z0[~bad], prep.L[~bad], prep.lo[~bad],
+            prep.hi[~bad], None)))
+    if bad.any():  # those units again from the start, exactly: the approximate gradient's
+        # "mode" may be far from the posterior's
+        lk_b = dataclasses.replace(lk, data=_take(lk.data, bad))
+        su_b = dataclasses.replace(su, theta0=su.theta0[bad], lo=su.lo[bad], hi=su.hi[bad])
+        groups.append(_Group(rows[bad], _at_mode(
+            lk_b, su_b, _take(st, bad), every, dataclasses.replace(target, residual=lk.exact),
+            z0[bad], L[bad])))
+    return [_Group(g.rows, dataclasses.replace(g.prep, gradient_error=float(np.max(err))))
+            for g in groups]
 
 
 def _unit_keys(key: Any, units: np.ndarray, chains: int, round_: int):
@@ -213,16 +243,22 @@ def _unit_keys(key: Any, units: np.ndarray, chains: int, round_: int):
     return jax.vmap(one)(jnp.asarray(units))
 
 
-def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys, show: bool):
-    """The chains of the units `rows`, with a progress bar where `show`; host arrays."""
-    bar = None
-    if show:
-        from tqdm.auto import tqdm  # imported here: only a shown bar needs it
+def _bar(show: bool, total: int):
+    """A tqdm progress bar of `total` chain steps where `show` (None otherwise), installed as
+    the one the compiled program advances."""
+    if not show:
+        return None
+    from tqdm.auto import tqdm  # imported here: only a shown bar needs it
 
-        total = (sampler.warmup + sampler.draws) * rows.size * sampler.chains
-        bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
-                   leave=False, file=sys.stderr)
-        BAR[0] = bar
+    bar = tqdm(total=total, desc="posterior (warmup + draws, all chains)", unit="step",
+               leave=False, file=sys.stderr)
+    BAR[0] = bar
+    return bar
+
+
+def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys, show: bool):
+    """The NUTS chains of the units `rows`, with a progress bar where `show`; host arrays."""
+    bar = _bar(show, (sampler.warmup + sampler.draws) * rows.size * sampler.chains)
     units = jax.tree.map(lambda a: a[rows], prep.units)
     try:
         out = run_chains(prep.target, su.prior_data, sampler, show, units,
@@ -235,7 +271,84 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
     return out
 
 
-def _posterior(lk: Likelihood, su: _Setup, prep: _Prepared, sampler: Sampler, noise: str,
+def _pages(n: int, page: int) -> list[np.ndarray]:
+    """Indices `0..n-1` in pages of `page`, the last padded by repeating its last index (one
+    compiled shape for all pages)."""
+    return [np.minimum(np.arange(s, s + page), n - 1) for s in range(0, n, page)]
+
+
+def _page_size(sampler: Sampler, n: int, first: int | None) -> int:
+    """Units per page for `n` units: the kernel's page (:meth:`ChEES.page_size`), in a
+    continuation (`first` the first round's page) the smallest power of two that holds them,
+    at most `first` (few compiled shapes); a multiple of the CPU devices the units are
+    sharded over where they are vmapped, else at most an equal share of the units per device
+    (each device runs pages of its own, side by side)."""
+    page = sampler.kernel.page_size(n, sampler.chains)
+    if first is not None:
+        page = min(first, 1 << (n - 1).bit_length())
+    d = jax.local_device_count()
+    if vectorized(sampler) != "all":  # units mapped: at least one page per device
+        return max(1, min(page, -(-n // d)))
+    return -(-page // d) * d
+
+
+def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
+                   show: bool, state: LockstepState | None = None, first: int | None = None):
+    """The ChEES chains of the units `rows` in pages (:func:`_page_size`): warmup and draws
+    from the mode, or (`state`, the chains' last state per row) draws that extend them; host
+    arrays, the units' last state, and the page size."""
+    page = _page_size(sampler, rows.size, first)
+    pages = _pages(rows.size, page)
+    steps = sampler.draws + (0 if state is not None else sampler.warmup)
+    bar = _bar(show, steps * len(pages) * page * sampler.chains)
+    devices = jax.local_devices() if vectorized(sampler) != "all" else []
+    outs = []
+    try:
+        for i, idx in enumerate(pages):  # dispatched without waiting: pages on several
+            # devices run side by side
+            r = rows[idx]
+            own = (jax.tree.map(lambda a: a[r], prep.units), keys[idx],
+                   (jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r])) if state is None
+                   else jax.tree.map(lambda a: a[idx], state))
+            if len(devices) > 1:
+                own = jax.device_put(own, devices[i % len(devices)])
+            units, k, rest = own
+            if state is None:
+                out = run_lockstep(prep.target, su.prior_data, sampler, show, units, *rest, k)
+            else:
+                out = extend_lockstep(prep.target, su.prior_data, sampler, show, units, rest,
+                                      k)
+            outs.append((len(np.unique(idx)), out))
+        outs = [jax.tree.map(lambda a: a[:n], jax.device_get(jax.block_until_ready(out)))
+                for n, out in outs]
+    finally:
+        BAR[0] = None
+        if bar is not None:
+            bar.close()
+    return jax.tree.map(lambda *a: np.concatenate(a), *outs), page
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Shared:
+    """What every unit's posterior shares of the groups' preparation: the box after the start
+    (U, K) and after the uniform priors, the names of the unknowns integrated out (in any
+    group), the gradient check's largest error."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    linear: tuple[str, ...]
+    gradient_error: float | None
+
+
+def _shared(su: _Setup, groups: list[_Group]) -> _Shared:
+    lo, hi = su.lo.copy(), su.hi.copy()
+    for g in groups:
+        lo[g.rows], hi[g.rows] = g.prep.lo, g.prep.hi
+    lin = sorted({j for g in groups for j in g.prep.target.linear})
+    return _Shared(lo, hi, tuple(su.names[j] for j in lin), groups[0].prep.gradient_error)
+
+
+def _posterior(lk: Likelihood, su: _Setup, sh: _Shared, sampler: Sampler, noise: str,
                out, seed: Any, timings: dict[str, float]) -> Posterior:
     theta, sigma, rho, (lp, div, steps, acc), step_size, warm_steps = out
     U = np.shape(theta)[0]  # the units drawn (a continuation: those it ran)
@@ -247,11 +360,11 @@ def _posterior(lk: Likelihood, su: _Setup, prep: _Prepared, sampler: Sampler, no
         diverging=np.asarray(div, bool), n_steps=np.asarray(steps, int),
         accept=np.asarray(acc, float), step_size=np.asarray(step_size, float),
         warmup_steps=np.asarray(warm_steps, int), warmup_length=np.full(U, sampler.warmup),
-        rounds=np.zeros(U, int), gradient_error=prep.gradient_error,
-        linear=tuple(su.names[j] for j in prep.target.linear), theta0=su.theta0,
-        lower=prep.lo, upper=prep.hi, free=np.isin(np.arange(len(su.names)), su.free),
-        noise=noise, prior={n: p.describe() for n, p in su.priors.items()}, sampler=sampler,
-        seed=seed, timings=timings, param_units=None if lk.units is None else tuple(lk.units))
+        rounds=np.zeros(U, int), gradient_error=sh.gradient_error, linear=sh.linear,
+        theta0=su.theta0, lower=sh.lo, upper=sh.hi,
+        free=np.isin(np.arange(len(su.names)), su.free), noise=noise,
+        prior={n: p.describe() for n, p in su.priors.items()}, sampler=sampler, seed=seed,
+        timings=timings, param_units=None if lk.units is None else tuple(lk.units))
 
 
 def sample(
@@ -263,14 +376,16 @@ def sample(
     key: int | Any = 0,
     progress: bool | None = False,
 ) -> Posterior:
-    """Sample the posterior of a problem's unknowns with NUTS, on every unit at once.
+    """Sample the posterior of a problem's unknowns, on every unit at once.
 
     The start is the optimum `likelihood.theta0` with the Gauss-Newton covariance of the
     residuals there (one unknown held per direction the data leave undetermined); a damped
     Newton search moves it onto the posterior's mode (the noise model, the prior and the soft
     box move it), and the chains start around the mode with the inverse Hessian there as
-    their mass matrix. Units whose chains miss R-hat <= 1.01, bulk or tail ESS >= 400, or
-    diverge, are continued (`Sampler.continuations`).
+    their metric. The kernel (`Sampler.kernel`) is NUTS, each chain on its own, or ChEES-HMC,
+    every chain of every unit of a page in lockstep (see :class:`mrjax.bayes.ChEES`). Units
+    whose chains miss R-hat <= 1.01, bulk or tail ESS >= 400, or diverge, are continued
+    (`Sampler.continuations`).
 
     **Arguments:** `likelihood` the problem's :class:`Likelihood`; `sampler` the
     :class:`Sampler` (default `Sampler()`, its defaults chosen for the model's kind); `noise`
@@ -288,23 +403,148 @@ def sample(
     noise = check_noise(noise)
     su = _checked(likelihood, noise, prior)
     t0 = time.perf_counter()
-    prep = _prepare(likelihood, su, sampler, noise)
+    groups = _prepare(likelihood, su, sampler, noise)
     t_mode = time.perf_counter() - t0
     seed = int(key) if isinstance(key, (int, np.integer)) and not isinstance(key, bool) else None
     key = jax.random.key(seed) if seed is not None else key
     show = sys.stderr.isatty() if progress is None else bool(progress)
-    U = su.theta0.shape[0]
     t0 = time.perf_counter()
-    every = np.arange(U)
-    out = _draw(prep, su, sampler, every, _unit_keys(key, every, sampler.chains, 0), show)
-    post = _posterior(likelihood, su, prep, sampler, noise, out, seed, {})
-    for r in range(1, sampler.continuations + 1):
-        rows = np.flatnonzero(post.unconverged())
-        if rows.size == 0:
-            break
-        s_r = sampler.continued(r, bool(post.diverging[rows].any()))
-        out = _draw(prep, su, s_r, rows, _unit_keys(key, rows, sampler.chains, r), show)
-        post = post.with_units(rows, _posterior(likelihood, su, prep, s_r, noise, out, seed,
-                                                {}), r)
+    run = _Run(likelihood, su, groups, _shared(su, groups), noise, seed, key, show)
+    post = run.lockstep(sampler) if sampler.lockstep else run.nuts(sampler)
     wall = time.perf_counter() - t0 + t_mode
     return dataclasses.replace(post, timings={"sample": wall, "mode": t_mode})
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Run:
+    """The draws of one :func:`sample` call: the first round of every unit, then the
+    continuations of those that missed (`Sampler.continuations`), by kernel; each group of
+    units (:func:`_prepare`) drawn with its own log-density."""
+
+    lk: Likelihood
+    su: _Setup
+    groups: list[_Group]
+    sh: _Shared
+    noise: str
+    seed: int | None
+    key: Any
+    show: bool
+
+    def post(self, sampler: Sampler, out) -> Posterior:
+        return _posterior(self.lk, self.su, self.sh, sampler, self.noise, out, self.seed, {})
+
+    def split(self, rows: np.ndarray):
+        """`(group index, positions in rows, indices within the group)` of the units `rows`,
+        group by group."""
+        for i, g in enumerate(self.groups):
+            pos = np.flatnonzero(np.isin(rows, g.rows))
+            if pos.size:
+                yield i, pos, np.searchsorted(g.rows, rows[pos])
+
+    def draw(self, fn, sampler: Sampler, rows: np.ndarray, round_: int):
+        """`fn(group index, rows within the group, their keys) -> (out, extra)` for the units
+        `rows`, group by group: the outs joined, their unit axes in the order of `rows`, and
+        {group index: extra}."""
+        outs, extra = [], {}
+        for i, pos, local in self.split(rows):
+            out, extra[i] = fn(i, local, _unit_keys(self.key, rows[pos], sampler.chains,
+                                                     round_))
+            outs.append((pos, out))
+        if len(outs) == 1 and np.array_equal(outs[0][0], np.arange(rows.size)):
+            return outs[0][1], extra
+
+        def put(*leaves):
+            full = np.empty((rows.size,) + leaves[0].shape[1:], leaves[0].dtype)
+            for (pos, _), a in zip(outs, leaves):
+                full[pos] = a
+            return full
+
+        return jax.tree.map(put, *[o for _, o in outs]), extra
+
+    def nuts(self, sampler: Sampler) -> Posterior:
+        """NUTS: a continued unit runs again from the mode, 2^r x the warmup and draws."""
+        def fn(s):
+            return lambda i, local, keys: (_draw(self.groups[i].prep, self.su, s, local, keys,
+                                                 self.show), None)
+
+        every = np.arange(self.su.theta0.shape[0])
+        post = self.post(sampler, self.draw(fn(sampler), sampler, every, 0)[0])
+        for r in range(1, sampler.continuations + 1):
+            rows = np.flatnonzero(post.unconverged())
+            if rows.size == 0:
+                break
+            s_r = sampler.continued(r, bool(post.diverging[rows].any()))
+            post = post.with_units(rows, self.post(s_r, self.draw(fn(s_r), sampler, rows, r)[0]),
+                                   r)
+        return post
+
+    def fresh(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict):
+        """ChEES warmup and draws of the units `rows` from the mode: `(Posterior of those
+        units, {group: (its chains' last state, the page size)})`."""
+        def fn(i, local, keys):
+            out, page = _draw_lockstep(self.groups[i].prep, self.su, sampler, local, keys,
+                                       self.show, first=first.get(i))
+            *draws, step, warm, state = out
+            C = sampler.chains
+            out = (*draws, np.repeat(step[:, None], C, 1), np.repeat(warm[:, None], C, 1))
+            return out, {"state": state, "page": page}
+
+        out, extra = self.draw(fn, sampler, rows, round_)
+        return self.post(sampler, out), extra
+
+    def lockstep(self, sampler: Sampler) -> Posterior:
+        """ChEES: a continued unit's chains go on from where they stopped (round r: to 2^r x
+        the draws, every 2^r-th kept), except where they diverged: those start again from the
+        mode with 2^r x the warmup and a higher target acceptance."""
+        every = np.arange(self.su.theta0.shape[0])
+        post, extra = self.fresh(sampler, every, 0, {})
+        states = {i: e["state"] for i, e in extra.items()}
+        first = {i: e["page"] for i, e in extra.items()}
+        for r in range(1, sampler.continuations + 1):
+            rows = np.flatnonzero(post.unconverged())
+            if rows.size == 0:
+                break
+            div = post.diverging[rows].any(axis=(1, 2))
+            if div.any():
+                new, extra = self.fresh(sampler.continued(r, True), rows[div], r, first)
+                post = post.with_units(rows[div], new, r)
+                for i, pos, local in self.split(rows[div]):
+                    states[i] = _set_rows(states[i], local, extra[i]["state"])
+            if (~div).any():
+                post = self.extend(sampler, post, states, rows[~div], r, first)
+        return post
+
+    def extend(self, sampler: Sampler, post: Posterior, states: dict, rows: np.ndarray,
+               r: int, first: dict) -> Posterior:
+        """Round `r` of the units `rows` by extension: their kept draws' every second, then
+        `draws - draws // 2` new ones at 2^r x `thin` (the chains' whole length so far again,
+        every 2^r-th step kept); `states` updated in place."""
+        N = post.n_draws
+        s_r = dataclasses.replace(sampler, draws=N - N // 2, thin=sampler.thin * 2 ** r)
+
+        def fn(i, local, keys):
+            out, _ = _draw_lockstep(self.groups[i].prep, self.su, s_r, local, keys, self.show,
+                                    state=_take(states[i], local), first=first.get(i))
+            *draws, st = out
+            states[i] = _set_rows(states[i], local, st)
+            return tuple(draws), None
+
+        draws, _ = self.draw(fn, sampler, rows, r)
+        old = (post.theta, post.sigma, post.rho, (post.lp, post.diverging, post.n_steps,
+                                                    post.accept))
+        both = jax.tree.map(lambda a, b: np.concatenate([a[rows][:, :, 1::2], b], axis=2),
+                            old, draws)
+        new = self.post(sampler, (*both, post.step_size[rows], post.warmup_steps[rows]))
+        new = dataclasses.replace(new, warmup_length=post.warmup_length[rows])
+        return post.with_units(rows, new, r)
+
+
+def _set_rows(state, rows: np.ndarray, new):
+    """`state` (a pytree of host arrays with a leading unit axis) with the units `rows` set to
+    `new`."""
+    def put(a, b):
+        a = np.array(a)
+        a[rows] = b
+        return a
+
+    return jax.tree.map(put, state, new)

@@ -1,4 +1,5 @@
-"""The one sampler of mrjax: NUTS (blackjax) on any problem kind's residual function.
+"""The settings of the one sampler of mrjax (:class:`Sampler` and its kernels :class:`NUTS`
+and :class:`ChEES`) on any problem kind's residual function.
 
 A problem kind supplies a residual function of one *unit*'s unknowns (one condition of a
 per-test fit; the whole data set of a joint-law fit),
@@ -9,14 +10,14 @@ a tuple of blocks of records (rows) by samples, masked samples unscored, and the
 box. :func:`sample` builds one log-density per unit (the Gaussian likelihood of
 `mrjax.bayes.block_loglik` with one noise level per record and, for `noise="ar1"`, one AR(1)
 coefficient per unit; the priors of `mrjax.bayes.log_prior` through the bounded map
-`to_box` with its log-Jacobian), adapts step size and mass matrix with
-`blackjax.window_adaptation` (Stan's windows) from chains started around the posterior's mode
-with an inverse mass matrix from the Hessian there (found by damped Newton from the polished
-optimum, in the coordinates of the Gauss-Newton covariance of the residuals there; one
-unknown held per direction the data leave undetermined), and draws with `blackjax.nuts` in a
-`lax.scan`: every chain of every unit in one compiled program, like the swarm (mapped one
-after another or a unit's chains at once on a CPU, vmapped on an accelerator: see
-`Sampler.vectorize`).
+`to_box` with its log-Jacobian), starts the chains around the posterior's mode with a metric
+from the Hessian there (found by damped Newton from the polished optimum, in the coordinates
+of the Gauss-Newton covariance of the residuals there; one unknown held per direction the
+data leave undetermined), and draws with the kernel of `Sampler.kernel`
+(`mrjax.bayes._chains`): NUTS, each chain adapted and run on its own (Stan's windows,
+`blackjax.window_adaptation`), or ChEES-HMC, the chains of every unit of a page in lockstep
+in one vmapped batch, each unit's step size, trajectory length and metric tuned from its
+chains together (`blackjax.chees_adaptation`).
 
 The sampler's position is `z = [u (Kf), log s (R), v]`: `u` the unknowns it moves in the
 bounded map (the free ones, less those held in every unit and the linear ones integrated out:
@@ -32,31 +33,31 @@ $\\rho \\in (-1, 1)$).
 
 from __future__ import annotations
 
+import abc
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._noise import log1m_tanh2
-from ._priors import to_box
-from ._start import linear_draw, log_density
 
-#: Chains start at the mode plus this many starting standard deviations of noise (a start
-#: with a non-finite log-density falls back onto the mode).
-JITTER = 1.0
-#: Default draws kept per chain, chains per unit and warmup steps per chain (see `Sampler`).
-DRAWS, CHAINS, WARMUP = 1000, 4, 500
-#: Default target acceptance rate of the step-size adaptation, by the model's kind (see
+#: Default target acceptance of the step-size adaptation, by kernel and the model's kind (see
 #: `Sampler.target_accept`).
 TARGET_ACCEPT = {"static": 0.9, "dynamic": 0.8}
 #: Default further rounds for the units that missed convergence (see `Sampler.continuations`),
 #: and the highest target acceptance a continued unit that diverged is given.
 CONTINUATIONS = 2
 CONTINUED_TARGET = 0.995
+#: ChEES's default target for the harmonic mean of its chains' acceptance: above the optimum
+#: of jittered HMC on a Gaussian (0.651), where the tanh model's AR(1) posteriors on long
+#: records diverged now and then (a diverging unit is warmed up again), at about the same
+#: leapfrog steps per draw (`benchmarks/posterior.md`).
+CHEES_TARGET = 0.8
+#: Chains start at the mode plus this many starting standard deviations of noise (a start
+#: with a non-finite log-density falls back onto the mode).
+JITTER = 1.0
 #: Draws whose linear unknowns (integrated out of the log-density) are drawn side by side.
 LINEAR_BATCH = 64
 #: What `Sampler.vectorize` may name: every chain of every unit in one batch, the chains of
@@ -64,26 +65,125 @@ LINEAR_BATCH = 64
 VECTORIZE: tuple[str, ...] = ("all", "chains", "none")
 
 
-class Sampler(eqx.Module):
-    """Settings of the NUTS sampler (all static: a new value compiles a new program).
+class AbstractKernel(eqx.Module):
+    """A kernel of :class:`Sampler`: how the chains move and are tuned (:class:`NUTS`,
+    :class:`ChEES`). `DRAWS`, `CHAINS`, `WARMUP` are its defaults for `Sampler.draws`,
+    `chains` and `warmup`; `target_accept(dynamic)` its default target acceptance rate."""
+
+    DRAWS: ClassVar[int]
+    CHAINS: ClassVar[int]
+    WARMUP: ClassVar[int]
+
+    @abc.abstractmethod
+    def target_accept(self, dynamic: bool) -> float:
+        """The default target acceptance rate for a dynamic model (or a static one)."""
+
+    @property
+    def name(self) -> str:
+        """The kernel's name in files (`posterior.nc`'s attributes, fit.json)."""
+        return f"blackjax {type(self).__name__}"
+
+
+class NUTS(AbstractKernel):
+    """The No-U-Turn sampler (`blackjax.nuts`), every chain adapted on its own with Stan's
+    windows (`blackjax.window_adaptation`: step size, then a dense or diagonal mass matrix,
+    `Sampler.dense_mass`), trees of at most 2^`Sampler.max_doublings` - 1 leapfrog steps.
+    Each chain's tree has its own depth: chains batched by `vmap` wait for the deepest at
+    every draw, so chains and units are mapped or vmapped as `Sampler.vectorize` says.
+
+    Defaults: 4 chains x (500 warmup + 1,000 draws); target acceptance 0.9 for a static
+    model (Stan: 0.8; short records leave its parameters strongly correlated, and smaller
+    steps avoid divergent transitions at little cost), 0.8 for a dynamic one (every leapfrog
+    step an integration). The chains start at the posterior's mode with the inverse of its
+    Hessian as metric, so the adaptation has less to find than Stan's 1,000 steps assume
+    (`benchmarks/posterior.md`).
+    """
+
+    DRAWS: ClassVar[int] = 1000
+    CHAINS: ClassVar[int] = 4
+    WARMUP: ClassVar[int] = 500
+
+    def target_accept(self, dynamic: bool) -> float:
+        return TARGET_ACCEPT["dynamic" if dynamic else "static"]
+
+
+class ChEES(AbstractKernel):
+    """ChEES-HMC (Hoffman, Radul & Sountsov 2021; `blackjax.chees_adaptation`): jittered HMC
+    whose chains of one unit share a step size and a trajectory length, tuned from all of
+    them at every warmup step (the step size by dual averaging on their harmonic-mean
+    acceptance, the length by Adam on the ChEES criterion), so that the chains of a unit, and
+    with `Sampler.vectorize` `"all"` all the chains of all the units of a page, move in
+    lockstep in one vmapped batch, one leapfrog step each per batch step. Each unit's
+    metric is the inverse Hessian at its mode, re-estimated during the warmup
+    from its chains' covariance (`mrjax.bayes._chains.WINDOWS`: the coordinates re-whitened,
+    a dense mass matrix per unit). Its continuations extend the chains of the units that
+    missed (no new warmup) unless they diverged.
 
     **Fields:**
 
-    - `draws`: draws kept per chain (after warmup).
-    - `chains`: independent chains per unit.
-    - `warmup`: adaptation steps per chain (Stan's windows: step size, then mass matrix).
-        `WARMUP` = 500 (Stan: 1,000, for chains started anywhere): the chains start at the
-        posterior's mode with the inverse of its Hessian as mass matrix, and the adaptation
-        has little left to find (`benchmarks/posterior.md`).
-    - `target_accept`: the step-size adaptation's target acceptance rate; None (default):
-        `TARGET_ACCEPT` by the model (:meth:`for_model`): 0.9 for a static model (Stan: 0.8),
-        whose parameters on short records are strongly correlated, so that smaller steps
-        avoid divergent transitions at little cost; 0.8 for a dynamic model, whose every
-        leapfrog step is an integration (`benchmarks/posterior.md`).
+    - `max_leapfrog`: the most leapfrog steps of one trajectory.
+    - `learning_rate`: Adam's learning rate on the log trajectory length.
+    - `page`: units per compiled batch (the memory bound: a batch holds `page x chains`
+        chains' residuals and Jacobians); None: all units in one page up to
+        `PAGE_CHAINS` chains, else as many pages of equal size as needed.
+
+    Defaults (`Sampler`): 8 chains x (300 warmup + 500 draws); target acceptance
+    `CHEES_TARGET`. The same 4,000 draws as 16 chains x 250 leave the
+    split R-hat of a well-mixed posterior above 1.01 about half the time (32 half-chains of
+    125 draws: its noise alone; `benchmarks/posterior.md`).
+    """
+
+    max_leapfrog: int = eqx.field(static=True, default=256)
+    learning_rate: float = eqx.field(static=True, default=0.05)
+    page: int | None = eqx.field(static=True, default=None)
+
+    DRAWS: ClassVar[int] = 500
+    CHAINS: ClassVar[int] = 8
+    WARMUP: ClassVar[int] = 300
+    #: Chains a default page holds at most.
+    PAGE_CHAINS: ClassVar[int] = 1024
+
+    def __check_init__(self):
+        for name in ("max_leapfrog", "page"):
+            v = getattr(self, name)
+            if v is None and name == "page":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise InputError(f"ChEES {name} must be a positive integer, got {v!r}")
+        if not (isinstance(self.learning_rate, (int, float)) and self.learning_rate > 0):
+            raise InputError(f"ChEES learning_rate must be positive, got "
+                             f"{self.learning_rate!r}")
+
+    def target_accept(self, dynamic: bool) -> float:
+        return CHEES_TARGET
+
+    def page_size(self, units: int, chains: int) -> int:
+        """Units per page for `units` units of `chains` chains: `page`, else all in one page up
+        to `PAGE_CHAINS` chains, else equal pages of at most that many chains."""
+        if self.page is not None:
+            return min(int(self.page), units)
+        n_pages = -(-units * chains // self.PAGE_CHAINS)
+        return -(-units // max(n_pages, 1))
+
+
+class Sampler(eqx.Module):
+    """Settings of the sampler (all static: a new value compiles a new program).
+
+    **Fields:**
+
+    - `draws`: draws kept per chain (after warmup); None: the kernel's default
+        (`NUTS`: 1,000; `ChEES`: 500).
+    - `chains`: independent chains per unit; None: the kernel's default (`NUTS`: 4;
+        `ChEES`: 8).
+    - `warmup`: adaptation steps per chain; None: the kernel's default (`NUTS`: 500;
+        `ChEES`: 300).
+    - `target_accept`: the step-size adaptation's target acceptance rate (NUTS: the mean
+        acceptance of each tree; ChEES: the harmonic mean over a unit's chains); None: the
+        kernel's default for the model (:meth:`for_model`).
     - `max_doublings`: NUTS tree depth cap (at most 2^max_doublings - 1 leapfrog steps).
-    - `dense_mass`: adapt a dense inverse mass matrix (default; the damper models' parameters
-        trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
-    - `vectorize`: `True` (or `"all"`) vmaps every chain of every unit into one batch;
+    - `dense_mass`: NUTS: adapt a dense inverse mass matrix (default; the damper models'
+        parameters trade off, e.g. modified Bouc-Wen's z-scale) or a diagonal one.
+    - `vectorize`: NUTS: `True` (or `"all"`) vmaps every chain of every unit into one batch;
         `"chains"` vmaps the chains of a unit and runs the units one after another; `False`
         (or `"none"`) runs every chain one after another with `lax.map`; all in one compiled
         program. `None` (default): `"all"` on an accelerator; on a CPU `"chains"` for a
@@ -93,24 +193,31 @@ class Sampler(eqx.Module):
         batch ends, so where one chain's residuals already fill the vector units (a static
         model on a record) the batch only adds work (`benchmarks/posterior.md`). With
         several CPU devices the chains of a unit are also spread over them
-        (:func:`chain_devices`).
+        (:func:`chain_devices`). ChEES: `"all"` vmaps every chain of every unit of a page
+        (its units sharded over several CPU devices), `"chains"` vmaps the chains of one unit
+        at a time, `"none"` steps them one after another (still in lockstep: one step size
+        and trajectory length per unit); `None`: `"all"` on an accelerator or for a
+        forward-mode gradient, else `"none"` (a static model's record: a batch of chains
+        only adds memory traffic, measured in `benchmarks/posterior.md`).
     - `continuations`: at most this many further rounds for the units whose chains missed
-        R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged: round r runs those
-        units' chains again from the mode with 2^r x the warmup and 2^r x the draws, every
-        2^r-th kept (same shape, about 2^r x the effective draws), and a target acceptance
-        raised towards `CONTINUED_TARGET` where a unit diverged; what still misses is warned
-        about (`Posterior.rounds` says how many rounds each unit took). 0: no continuation.
+        R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged; what still misses is
+        warned about (`Posterior.rounds` says how many rounds each unit took). NUTS: round r
+        runs those units' chains again from the mode with 2^r x the warmup and 2^r x the
+        draws, every 2^r-th kept (same shape, about 2^r x the effective draws), and a target
+        acceptance raised towards `CONTINUED_TARGET` where a unit diverged. ChEES: round r
+        extends those units' chains to 2^r x the draws, every 2^r-th kept; a unit that
+        diverged is warmed up again from the mode as NUTS's are. 0: no continuation.
     - `thin`: keep every `thin`-th draw of `thin` x `draws` (the continuations set it).
     - `gradient`: how the residuals are differentiated: `"reverse"` or `"forward"` (their
         Jacobian by `jax.jacfwd`, then transposed: cheaper through a sequential integration,
-        e.g. the dynamic models). `None` (default): `mrjax.posterior` chooses forward mode for
-        a dynamic model and reverse mode for a static one (:meth:`for_model`); `sample` alone,
-        reverse mode.
+        e.g. the dynamic models). `None` (default): forward mode for a dynamic model and
+        reverse mode for a static one (:meth:`for_model`).
+    - `kernel`: how the chains move: :class:`NUTS` (default) or :class:`ChEES`.
     """
 
-    draws: int = eqx.field(static=True, default=DRAWS)
-    chains: int = eqx.field(static=True, default=CHAINS)
-    warmup: int = eqx.field(static=True, default=WARMUP)
+    draws: int | None = eqx.field(static=True, default=None)
+    chains: int | None = eqx.field(static=True, default=None)
+    warmup: int | None = eqx.field(static=True, default=None)
     target_accept: float | None = eqx.field(static=True, default=None)
     max_doublings: int = eqx.field(static=True, default=10)
     dense_mass: bool = eqx.field(static=True, default=True)
@@ -118,17 +225,30 @@ class Sampler(eqx.Module):
     gradient: str | None = eqx.field(static=True, default=None)
     continuations: int = eqx.field(static=True, default=CONTINUATIONS)
     thin: int = eqx.field(static=True, default=1)
+    kernel: AbstractKernel = eqx.field(static=True, default=NUTS())
+
+    def __post_init__(self):
+        # the counts not given are the kernel's (one that is no kernel is refused by `check`)
+        kernel = self.kernel if isinstance(self.kernel, AbstractKernel) else NUTS()
+        for name, default in (("draws", kernel.DRAWS), ("chains", kernel.CHAINS),
+                              ("warmup", kernel.WARMUP)):
+            if getattr(self, name) is None:
+                setattr(self, name, default)
 
     def for_model(self, dynamic: bool) -> Sampler:
         """Self with `gradient` and `target_accept` chosen where they are None: `"forward"`
         for a dynamic model (one sequential integration, which reverse mode stores and
-        replays), `"reverse"` for a static one; the target acceptance `TARGET_ACCEPT` of the
+        replays), `"reverse"` for a static one; the kernel's target acceptance for the
         model's kind."""
-        kind = "dynamic" if dynamic else "static"
         return dataclasses.replace(
             self, gradient=self.gradient or ("forward" if dynamic else "reverse"),
-            target_accept=TARGET_ACCEPT[kind] if self.target_accept is None
+            target_accept=self.kernel.target_accept(dynamic) if self.target_accept is None
             else self.target_accept)
+
+    @property
+    def lockstep(self) -> bool:
+        """Whether the kernel moves all chains of a page in lockstep (:class:`ChEES`)."""
+        return isinstance(self.kernel, ChEES)
 
     def continued(self, round_: int, diverged: bool) -> Sampler:
         """The settings of continuation round `round_` (>= 1): 2^r x the warmup, the same kept
@@ -144,8 +264,8 @@ class Sampler(eqx.Module):
                                    target_accept=target)
 
     def check(self) -> Sampler:
-        """Self, checked: :class:`mrjax.InputError` for a non-positive count or a target outside
-        (0, 1)."""
+        """Self, checked: :class:`mrjax.InputError` for a non-positive count, a target outside
+        (0, 1) or a kernel that is not one."""
         if isinstance(self.continuations, bool) or not isinstance(
                 self.continuations, (int, np.integer)) or self.continuations < 0:
             raise InputError(f"continuations must be an integer >= 0, got "
@@ -154,6 +274,11 @@ class Sampler(eqx.Module):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.kernel, AbstractKernel):
+            raise InputError(f"kernel must be mrjax.bayes.NUTS() or mrjax.bayes.ChEES(), got "
+                             f"{self.kernel!r}")
+        if self.lockstep and self.chains < 2:
+            raise InputError(f"ChEES needs at least 2 chains per unit, got {self.chains}")
         if self.target_accept is not None and not 0.0 < float(self.target_accept) < 1.0:
             raise InputError(f"target_accept must be in (0, 1), got {self.target_accept!r}")
         if self.vectorize not in (None, True, False, *VECTORIZE):
@@ -163,7 +288,6 @@ class Sampler(eqx.Module):
             raise InputError(f"gradient must be None, 'reverse' or 'forward', got "
                              f"{self.gradient!r}")
         return self
-
 
 # ------------------------------------------------------------------------------ progress
 #: The progress bar of the running sample, advanced from inside the compiled program.
@@ -176,7 +300,7 @@ def _tick_host(n):
         bar.update(int(np.ravel(n)[0]))
 
 
-def _tick(n):
+def tick(n):
     """Advance the progress bar by `n` steps of one chain: a `jax.debug.callback` (an effect:
     never removed as dead code; under vmap and on each device it runs once per chain)."""
     jax.debug.callback(_tick_host, n)
@@ -188,56 +312,10 @@ def vectorized(sampler: Sampler) -> str:
     if v is None:
         if jax.default_backend() != "cpu":
             return "all"
+        if sampler.lockstep:  # a unit's chains always move together
+            return "all" if sampler.gradient == "forward" else "none"
         return "chains" if sampler.gradient == "forward" else "none"
     return {True: "all", False: "none"}.get(v, v) if isinstance(v, bool) else str(v)
-
-
-# ------------------------------------------------------------------------------ the program
-def _chain(target, prior, sampler: Sampler, progress: bool, unit, z0, L, key):
-    """Warmup then sampling of one chain of one unit (batched at the call site), in the
-    whitened coordinates `w` with `z = z0 + L w` (see :func:`sample`). The progress bar
-    advances every step of every chain when chains are vmapped, else once per phase (a host
-    call per step would cost more than a step of a static model)."""
-    import blackjax  # imported here: `import mrjax` does not need it
-
-    logdensity = lambda w: log_density(target, prior, unit, z0 + L @ w)
-    jkey, wkey, skey = jax.random.split(key, 3)
-    w_try = JITTER * jax.random.normal(jkey, z0.shape, z0.dtype)
-    w_start = jnp.where(jnp.isfinite(logdensity(w_try)), w_try, jnp.zeros_like(w_try))
-    per_step = progress and vectorized(sampler) != "none"
-    one_tick = jnp.ones((), jnp.int32)
-
-    def info_fn(state, info, ad):
-        if per_step:
-            _tick(one_tick + 0 * info.num_integration_steps)
-        return info.num_integration_steps  # the warmup's cost, step by step
-
-    warmup = blackjax.window_adaptation(
-        blackjax.nuts, logdensity, is_mass_matrix_diagonal=not sampler.dense_mass,
-        target_acceptance_rate=sampler.target_accept, adaptation_info_fn=info_fn,
-        max_num_doublings=sampler.max_doublings)
-    (state, params), warm_steps = warmup.run(wkey, w_start, num_steps=sampler.warmup)
-    if progress and not per_step:  # after the warmup: it depends on its final state
-        _tick(sampler.warmup + 0 * jnp.isnan(state.logdensity).astype(jnp.int32))
-    kernel = blackjax.nuts(logdensity, **params)
-
-    def step(st, k):
-        st, info = kernel.step(k, st)
-        return st, (info.is_divergent, info.num_integration_steps, info.acceptance_rate)
-
-    def one(st, ks):  # `thin` steps, the last kept: divergences and steps over all of them
-        st, (div, n, acc) = jax.lax.scan(step, st, ks)
-        out = (z0 + L @ st.position, st.logdensity, jnp.any(div), jnp.sum(n), jnp.mean(acc))
-        if per_step:
-            _tick(one_tick + 0 * n[-1])
-        return st, out
-
-    keys = jax.random.split(skey, sampler.draws * sampler.thin)
-    last, trace = jax.lax.scan(one, state, keys.reshape(sampler.draws, sampler.thin,
-                                                        *keys.shape[1:]))
-    if progress and not per_step:
-        _tick(sampler.draws + 0 * jnp.isnan(last.logdensity).astype(jnp.int32))
-    return trace, params["step_size"], jnp.sum(warm_steps)
 
 
 def chain_devices(sampler: Sampler) -> int:
@@ -250,55 +328,3 @@ def chain_devices(sampler: Sampler) -> int:
     if n < 2 or jax.default_backend() != "cpu" or vectorized(sampler) == "all":
         return 1
     return max(d for d in range(1, min(n, sampler.chains) + 1) if sampler.chains % d == 0)
-
-
-@eqx.filter_jit
-def run_chains(target, prior, sampler, progress, units, z0, L, keys):
-    """Warmup and draws of every chain of every unit in one compiled program; the box map and
-    the noise transforms applied in it (draws in SI units). Returns `(theta, sigma, rho,
-    (lp, diverging, steps, accept), step_size, warmup_steps)`."""
-    chain = lambda unit, z, m, k: _chain(target, prior, sampler, progress, unit, z, m, k)
-    mode = vectorized(sampler)
-    over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
-    if mode == "none":  # one chain after another, in the same compiled program
-        over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
-    n_dev = chain_devices(sampler)
-    if n_dev > 1:  # the chains of a unit spread over the CPU devices, one share each
-        from jax.sharding import Mesh, PartitionSpec
-
-        mesh = Mesh(np.asarray(jax.local_devices()[:n_dev]), ("chain",))
-        over_chains = jax.shard_map(over_chains, mesh=mesh, in_specs=(
-            PartitionSpec(), PartitionSpec(), PartitionSpec(), PartitionSpec("chain")),
-            out_specs=PartitionSpec("chain"), check_vma=False)
-    if mode == "all":  # one batch of units x chains
-        trace, step, warm = jax.vmap(over_chains)(units, z0, L, keys)
-    else:  # one unit after another
-        trace, step, warm = jax.lax.map(lambda a: over_chains(*a), (units, z0, L, keys))
-    # the box map and the noise transforms, in the program: draws come back in SI units
-    free = np.asarray(target.free, int)
-    Kf, R = len(free), sum(target.rows)
-    z = trace[0]
-    th = to_box(z[..., :Kf], *(a[:, None, None, :] for a in (units.lo, units.hi, units.soft,
-                                                               units.log)))
-    theta = jnp.broadcast_to(units.theta[:, None, None, :],
-                             z.shape[:3] + units.theta.shape[-1:])
-    theta = theta.at[..., free].set(th)
-    if target.linear:  # the unknowns integrated out: drawn from their conditional at each draw
-        def draws(unit, zu, k):
-            flat = zu.reshape(-1, zu.shape[-1])
-            ks = jax.random.split(k, flat.shape[0])
-            out = jax.lax.map(lambda a: linear_draw(target, prior, unit, *a), (flat, ks),
-                              batch_size=LINEAR_BATCH)
-            return out.reshape(zu.shape[:-1] + out.shape[-1:])
-
-        lin_keys = jax.vmap(lambda k: jax.random.fold_in(k[0], 1))(keys)
-        beta = jax.lax.map(lambda a: draws(*a), (units, z, lin_keys))
-        theta = theta.at[..., np.asarray(target.linear, int)].set(beta)
-    log_sigma = z[..., Kf:Kf + R]
-    rho = None
-    if target.noise == "ar1":
-        v = z[..., Kf + R]
-        log_sigma, rho = log_sigma - 0.5 * log1m_tanh2(v)[..., None], jnp.tanh(v)
-    return theta, jnp.exp(log_sigma), rho, trace[1:], step, warm
-
-

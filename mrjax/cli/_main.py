@@ -17,6 +17,7 @@ from .._errors import InputError
 from .._io import OutputDir
 from ._export import add_parser as _export_parser
 from ._parse import (
+    KERNELS,
     POSTERIOR_DEFAULTS,
     Parser,
     add_data_options,
@@ -326,7 +327,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     imported), import the command and run it."""
     module, name = args.run
     if getattr(args, "posterior", False):
-        spread_chains(args.chains or POSTERIOR_DEFAULTS["chains"])
+        kernel = KERNELS.get(args.kernel or POSTERIOR_DEFAULTS["kernel"], (0, 1))
+        spread_chains(args.chains or kernel[1])
     if args.command in ("fit", "predict", "reproduce", "compare"):
         enable_compilation_cache()
     if args.command not in WRITERS:

@@ -311,23 +311,31 @@ def add_data_options(parser: argparse.ArgumentParser) -> None:
 
 #: The posterior options of `mrjax fit --posterior` and their defaults (None in argparse: given
 #: or not is checked), those of `mrjax.bayes.Sampler` (written out: the parser imports no JAX).
-POSTERIOR_DEFAULTS = {"draws": 1000, "chains": 4, "warmup": 500, "noise": "iid"}
+POSTERIOR_DEFAULTS = {"draws": 1000, "chains": 4, "warmup": 500, "noise": "iid",
+                      "kernel": "nuts"}
+#: The sampler kernels `--kernel` names, and each one's defaults of draws, chains and warmup.
+KERNELS = {"nuts": (1000, 4, 500), "chees": (500, 8, 300)}
 
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
     """Register `--posterior` and its options on the `mrjax fit` parser."""
-    g = p.add_argument_group("posterior (Bayesian identification by NUTS)")
+    g = p.add_argument_group("posterior (Bayesian identification by NUTS or ChEES-HMC)")
     g.add_argument("--posterior", action="store_true",
                    help="after the fit, sample the posterior of every test's parameters "
                    "(with --generalize: of the laws' coefficients) "
-                   "(NUTS, blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
+                   "(blackjax) and write posterior.nc, posterior.csv, a 'posterior' "
                    "entry in fit.json and figures")
+    g.add_argument("--kernel", metavar="|".join(KERNELS),
+                   help="how the chains move: nuts (each chain on its own) or chees "
+                   "(ChEES-HMC: every chain of every test in lockstep, one compiled batch) "
+                   f"(default {POSTERIOR_DEFAULTS['kernel']})")
+    per = lambda i: ", ".join(f"{k} {v[i]}" for k, v in KERNELS.items())
     g.add_argument("--draws", type=int, metavar="N",
-                   help=f"draws kept per chain (default {POSTERIOR_DEFAULTS['draws']})")
+                   help=f"draws kept per chain (default: the kernel's, {per(0)})")
     g.add_argument("--chains", type=int, metavar="K",
-                   help=f"chains per test (default {POSTERIOR_DEFAULTS['chains']})")
+                   help=f"chains per test (default: the kernel's, {per(1)})")
     g.add_argument("--warmup", type=int, metavar="N",
-                   help=f"adaptation steps per chain (default {POSTERIOR_DEFAULTS['warmup']})")
+                   help=f"adaptation steps per chain (default: the kernel's, {per(2)})")
     g.add_argument("--noise", metavar="iid|ar1",
                    help="residual model: iid (default) or ar1 (correlated model error: "
                    "honest intervals on real records)")

@@ -9,8 +9,8 @@ from typing import Any
 
 from .._errors import InputError
 from ._common import use_agg
+from ._parse import KERNELS, say
 from ._parse import POSTERIOR_DEFAULTS as DEFAULTS
-from ._parse import say
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +30,7 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]
     """The posterior's settings objects from the command line, or None without
     `--posterior`; `names` the model's parameters. Raises :class:`mrjax.InputError` (before
     any fitting) for an impossible option or for one given without `--posterior`."""
-    from ..bayes import NOISE_MODELS, Sampler, check_priors
+    from ..bayes import NOISE_MODELS, NUTS, ChEES, Sampler, check_priors
     from ..engine import DATA_CHOICES
 
     given = [f"--{k.replace('_', '-')}" for k in (*DEFAULTS, "posterior_data", "prior")
@@ -41,7 +41,11 @@ def posterior_settings(args: argparse.Namespace, names: Sequence[str]
         return None
     kw = {k: (getattr(args, k) if getattr(args, k) is not None else v)
           for k, v in DEFAULTS.items()}
-    sampler = Sampler(draws=kw["draws"], chains=kw["chains"], warmup=kw["warmup"]).check()
+    if kw["kernel"] not in KERNELS:
+        raise InputError(f"--kernel must be one of {', '.join(KERNELS)}, got "
+                         f"{kw['kernel']!r}")
+    sampler = Sampler(draws=args.draws, chains=args.chains, warmup=args.warmup,
+                      kernel=ChEES() if kw["kernel"] == "chees" else NUTS()).check()
     if kw["noise"] not in NOISE_MODELS:
         raise InputError(f"--noise must be one of {', '.join(NOISE_MODELS)}, got "
                          f"{kw['noise']!r}")

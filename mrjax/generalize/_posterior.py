@@ -185,7 +185,7 @@ class LawPosterior(PosteriorFront):
         dims.update({k: ["record"] for k in const})
         gm = self.model
         attrs = {"kind": "laws", "model": gm.model.name, "noise": p.noise, "seed": p.seed,
-                 "sampler": "blackjax NUTS", "warmup": int(p.sampler.warmup),
+                 "sampler": p.sampler.kernel.name, "warmup": int(p.sampler.warmup),
                  "likelihood_data": self.data, "noise_rule": NOISE_RULE,
                  "prior": "; ".join(f"{k}: {v}" for k, v in p.prior.items())
                  or "flat on the node values' box",
