@@ -110,18 +110,6 @@ def lag_grams(A: Float[ArrayLike, "*B R T L"], mask: Bool[ArrayLike, "*B R T"]
                       gram(jnp.where(restart[..., None], A, 0.0), A)], axis=-3)
 
 
-def _whiten_adjoint(w, mask, v):
-    """The transpose of :func:`whiten`'s linear map applied to `w` (R, T)."""
-    if v is None:
-        return jnp.where(mask, w, 0.0)
-    rho, s = jnp.tanh(v), jnp.exp(-0.5 * log1m_tanh2(v))
-    cont = mask[:, 1:] & mask[:, :-1]
-    coef = jnp.concatenate([jnp.ones_like(w[:, :1]), jnp.where(cont, s, 1.0)], axis=1)
-    nxt = jnp.concatenate([jnp.where(cont, w[:, 1:], 0.0) * (rho * s),
-                           jnp.zeros_like(w[:, :1])], axis=1)
-    return jnp.where(mask, coef * w - nxt, 0.0)
-
-
 def _whitened_gram(G, v):
     """Per record (R, L, L): the Gram matrix of the whitened regressors from their
     :func:`lag_grams` `G` (R, 4, L, L)."""
@@ -163,7 +151,8 @@ def linear_marginal(
         iv = jnp.exp(-2.0 * ls)
         ll = ll - 0.5 * jnp.sum(_base(m, ls, n_cont, v) + iv * jnp.sum(w * w, axis=1))
         M = M + jnp.einsum("rlk,r->lk", _whitened_gram(G, v), iv)
-        y = _whiten_adjoint(w, m, v)  # A_w^T w = A^T (W^T w)
+        # A_w^T w = A^T (W^T w), W^T the transpose of the (linear) whitening
+        y = jax.linear_transpose(lambda e: whiten(e, m, v)[0], r)(w)[0]
         c = c + jnp.einsum("rtl,rt->l", jnp.where(m[..., None], jnp.asarray(A), 0.0),
                            iv[:, None] * y)
     d = 1.0 / jnp.sqrt(jnp.diagonal(M))
