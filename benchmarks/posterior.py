@@ -28,7 +28,7 @@
 
 5. **Kernels** (`kernels`): the posterior of every UTFSM test in one call, cold, with NUTS
    (each chain on its own, 4 x (500 + 1000)) and with ChEES-HMC (every chain of every test in
-   lockstep, 8 x (300 + 500)), continuations included: wall, gradient evaluations, R-hat,
+   lockstep, 8 x (150 + 300)), continuations included: wall, gradient evaluations, R-hat,
    ESS, ESS per second, divergences.
 
 Writes `benchmarks/posterior.json` (sections merged) and `benchmarks/posterior.md`.
@@ -714,7 +714,7 @@ def main(argv: list[str] | None = None) -> int:
         merge("speed", rows[1:])
     elif a.what == "kernels":  # one campaign, NUTS then ChEES at their defaults
         merge("kernels", [cold(model=a.model, noise=a.noise, kernel=k, draws=d, chains=c)
-                          for k, d, c in (("nuts", 1000, 4), ("chees", 500, 8))])
+                          for k, d, c in (("nuts", 1000, 4), ("chees", 300, 8))])
     elif a.what == "views":
         pairs = []
         for noise in ("iid", "ar1"):

@@ -45,6 +45,7 @@ from ._result import Posterior as Posterior
 from ._result import PosteriorFront as PosteriorFront
 from ._result import arviz as arviz
 from ._sample import Likelihood as Likelihood
+from ._sample import length_groups as length_groups
 from ._sample import sample as sample
 from ._sampler import NUTS as NUTS
 from ._sampler import ChEES as ChEES
@@ -53,4 +54,4 @@ from ._sampler import chain_devices as chain_devices
 
 __all__ = ["ESS_MIN", "NOISE_MODELS", "NUTS", "RHAT_MAX", "ChEES", "Likelihood", "LogNormal",
            "Normal", "Posterior", "PredictiveBand", "Sampler", "Uniform", "block_loglik", "parse_prior",
-           "predictive_band", "read_draws", "sample"]
+           "length_groups", "predictive_band", "read_draws", "sample"]

@@ -60,6 +60,12 @@ class Likelihood:
         well inside their box, and drawn from their conditional (`Posterior.linear`).
     - `dynamic`: a dynamic model's residuals (one sequential integration): the sampler's
         defaults for it (`Sampler.for_model`).
+    - `trim`: `trim(data, n) -> data`, the units' data (leading unit axis) cut to their
+        first `n` samples, whose residual blocks are the first `n` samples of the uncut
+        ones' last axis; None where the data cannot be cut. With it, units of different
+        lengths padded to the longest (a campaign's records) are drawn in groups of similar
+        length, each cut to its longest unit's last scored sample (:func:`length_groups`):
+        a gradient costs in proportion to the samples it runs through.
     """
 
     residual: Callable
@@ -76,6 +82,7 @@ class Likelihood:
     exact: Callable | None = None
     linear: tuple[str, ...] = ()
     dynamic: bool = False
+    trim: Callable | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -190,6 +197,62 @@ def _take(tree, rows):
     return jax.tree.map(lambda a: a[rows], tree)
 
 
+#: A group of units of its own costs as many samples of every unit's gradient as this share
+#: of the campaign's padded samples (its own compiled program; see :func:`length_groups`).
+GROUP_COST = 0.05
+
+
+def length_groups(lengths: np.ndarray, group_cost: float = GROUP_COST) -> list[np.ndarray]:
+    """Units of `lengths` (U,) [samples] in groups of similar length: the partition of
+    the units sorted by length that minimises the samples a gradient runs through, each
+    group's units padded to its longest, plus `group_cost` x U x max(lengths) per group
+    (dynamic programming over the sorted lengths). Returns the groups' unit indices
+    (ascending), longest group first."""
+    n = np.asarray(lengths, float)
+    order = np.argsort(-n, kind="stable")
+    s = n[order]
+    U = s.size
+    penalty = group_cost * U * (s[0] if U else 0.0)
+    best = np.full(U + 1, np.inf)
+    best[0], cut = 0.0, np.zeros(U + 1, int)
+    for i in range(1, U + 1):  # best[i]: the first i sorted units grouped
+        cost = best[:i] + s[:i] * (i - np.arange(i)) + penalty
+        cut[i] = int(np.argmin(cost))
+        best[i] = cost[cut[i]]
+    bounds, i = [], U
+    while i > 0:
+        bounds.append((cut[i], i))
+        i = cut[i]
+    return [np.sort(order[a:b]) for a, b in reversed(bounds)]
+
+
+def _scored_length(masks: tuple) -> np.ndarray:
+    """(U,) one past each unit's last scored sample over its residual blocks' masks."""
+    ends = [np.where(np.asarray(m).any(axis=-2), np.arange(m.shape[-1]) + 1, 0).max(axis=-1)
+            for m in masks]
+    return np.max(ends, axis=0)
+
+
+def _by_length(lk: Likelihood, groups: list[_Group]) -> list[_Group]:
+    """`groups` split into groups of similar length (:func:`length_groups`), each unit's
+    data, masks and regressors cut to its group's longest scored sample; unchanged without
+    `lk.trim`."""
+    if lk.trim is None:
+        return groups
+    out = []
+    for g in groups:
+        n = _scored_length(g.prep.units.masks)
+        for sel in length_groups(n):
+            T = int(n[sel].max())
+            u = _take(g.prep.units, sel)
+            u = u._replace(data=lk.trim(u.data, T), masks=tuple(m[..., :T] for m in u.masks),
+                           regressors=tuple(r[..., :T, :] for r in u.regressors))
+            p = g.prep
+            out.append(_Group(g.rows[sel], _Prepared(p.target, u, p.z0[sel], p.L[sel],
+                                                     p.lo[sel], p.hi[sel], p.gradient_error)))
+    return out
+
+
 def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_Group]:
     """The start (`mrjax.bayes._start.start`: the optimum and the Gauss-Newton covariance of
     the residuals there, one unknown held per undetermined direction), moved onto the mode;
@@ -213,7 +276,7 @@ def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_
     prep = _at_mode(lk, su, st, every, target, z0, L)
     rows = np.arange(su.theta0.shape[0])
     if lk.exact is None:
-        return [_Group(rows, prep)]
+        return _by_length(lk, [_Group(rows, prep)])
     err = np.asarray(gradient_error(prep.target, su.prior_data, prep.units,
                                     jnp.asarray(prep.z0), jnp.asarray(prep.L)))
     bad = ~(err <= GRADIENT_TOL)
@@ -229,8 +292,8 @@ def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_
         groups.append(_Group(rows[bad], _at_mode(
             lk_b, su_b, _take(st, bad), every, dataclasses.replace(target, residual=lk.exact),
             z0[bad], L[bad])))
-    return [_Group(g.rows, dataclasses.replace(g.prep, gradient_error=float(np.max(err))))
-            for g in groups]
+    return _by_length(lk, [_Group(g.rows, dataclasses.replace(
+        g.prep, gradient_error=float(np.max(err)))) for g in groups])
 
 
 def _unit_keys(key: Any, units: np.ndarray, chains: int, round_: int):

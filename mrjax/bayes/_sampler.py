@@ -127,19 +127,23 @@ class ChEES(AbstractKernel):
         chains' residuals and Jacobians); None: all units in one page up to
         `PAGE_CHAINS` chains, else as many pages of equal size as needed.
 
-    Defaults (`Sampler`): 8 chains x (300 warmup + 500 draws); target acceptance
-    `CHEES_TARGET`. The same 4,000 draws as 16 chains x 250 leave the
-    split R-hat of a well-mixed posterior above 1.01 about half the time (32 half-chains of
-    125 draws: its noise alone; `benchmarks/posterior.md`).
+    Defaults (`Sampler`): 8 chains x (150 warmup + 300 draws); target acceptance
+    `CHEES_TARGET`. The chains start at the mode with its inverse Hessian as metric: 150
+    warmup steps tune them as well as 300 (the same leapfrog steps per draw and ESS on the
+    tanh AR(1) posteriors of the real records), and 2,400 draws give every test ESS >= 400;
+    the split R-hat's own noise then leaves about half the tests of a campaign above 1.01,
+    and their chains are extended (`Sampler.continuations`), which costs less than longer
+    chains for every test. The same draws as 16 chains of half the length leave R-hat above
+    1.01 more often (twice the half-chains, each half as long; `benchmarks/posterior.md`).
     """
 
     max_leapfrog: int = eqx.field(static=True, default=256)
     learning_rate: float = eqx.field(static=True, default=0.05)
     page: int | None = eqx.field(static=True, default=None)
 
-    DRAWS: ClassVar[int] = 500
+    DRAWS: ClassVar[int] = 300
     CHAINS: ClassVar[int] = 8
-    WARMUP: ClassVar[int] = 300
+    WARMUP: ClassVar[int] = 150
     #: Chains a default page holds at most.
     PAGE_CHAINS: ClassVar[int] = 1024
 
@@ -172,11 +176,11 @@ class Sampler(eqx.Module):
     **Fields:**
 
     - `draws`: draws kept per chain (after warmup); None: the kernel's default
-        (`NUTS`: 1,000; `ChEES`: 500).
+        (`NUTS`: 1,000; `ChEES`: 300).
     - `chains`: independent chains per unit; None: the kernel's default (`NUTS`: 4;
         `ChEES`: 8).
     - `warmup`: adaptation steps per chain; None: the kernel's default (`NUTS`: 500;
-        `ChEES`: 300).
+        `ChEES`: 150).
     - `target_accept`: the step-size adaptation's target acceptance rate (NUTS: the mean
         acceptance of each tree; ChEES: the harmonic mean over a unit's chains); None: the
         kernel's default for the model (:meth:`for_model`).
@@ -197,8 +201,10 @@ class Sampler(eqx.Module):
         (its units sharded over several CPU devices), `"chains"` vmaps the chains of one unit
         at a time, `"none"` steps them one after another (still in lockstep: one step size
         and trajectory length per unit); `None`: `"all"` on an accelerator or for a
-        forward-mode gradient, else `"none"` (a static model's record: a batch of chains
-        only adds memory traffic, measured in `benchmarks/posterior.md`).
+        forward-mode gradient, else `"chains"` (a static model: its units' trajectory
+        lengths differ, and a unit of a batch would wait for the longest; a unit's chains
+        take the same steps, and a batch of them runs the record's samples once for all,
+        measured in `benchmarks/posterior.md`).
     - `continuations`: at most this many further rounds for the units whose chains missed
         R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged; what still misses is
         warned about (`Posterior.rounds` says how many rounds each unit took). NUTS: round r
@@ -313,7 +319,7 @@ def vectorized(sampler: Sampler) -> str:
         if jax.default_backend() != "cpu":
             return "all"
         if sampler.lockstep:  # a unit's chains always move together
-            return "all" if sampler.gradient == "forward" else "none"
+            return "all" if sampler.gradient == "forward" else "chains"
         return "chains" if sampler.gradient == "forward" else "none"
     return {True: "all", False: "none"}.get(v, v) if isinstance(v, bool) else str(v)
 

@@ -254,7 +254,15 @@ class TestsProblem(AbstractProblem):
             units=self.model.units, labels=tuple(batch.labels),
             gauge=scale_gauge(self.model),
             exact=None if exact is None else ConditionResidual(exact, blocks=True),
-            linear=tuple(self.model.basis_params), dynamic=self.model.dynamic)
+            linear=tuple(self.model.basis_params), dynamic=self.model.dynamic,
+            trim=cut_records)
+
+
+def cut_records(data: tuple, n: int) -> tuple:
+    """The per-test likelihood's data `(x, xdot, dt, force, mask)` (leading test axis)
+    cut to the first `n` samples of every record (`Likelihood.trim`)."""
+    x, xdot, dt, force, mask = data
+    return x[:, :n], xdot[:, :n], dt, force[:, :n], mask[:, :n]
 
 
 def tests_problem(
