@@ -296,21 +296,31 @@ import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_posterior import Line, line_data, ols
-from mrjax.bayes import Likelihood, Sampler, chain_devices, sample
+from mrjax.bayes import ChEES, Likelihood, Sampler, chain_devices, sample
 data, _ = line_data()
 est, se, _ = ols(data)
 s = Sampler(draws=300, chains=4, warmup=300, gradient="forward", continuations=0)
 post = sample(Likelihood(Line(), est, data, lower=[-10, -10], upper=[10, 10], names=("a", "b")),
               sampler=s)
 th = post.theta.reshape(2, -1, 2)
+data3, _ = line_data(U=3)
+est3, se3, _ = ols(data3)
+c = Sampler(draws=200, chains=4, warmup=150, vectorize="all", continuations=0,
+            kernel=ChEES())
+lock = sample(Likelihood(Line(), est3, data3, lower=[-10, -10], upper=[10, 10],
+                         names=("a", "b")), sampler=c)
+th3 = lock.theta.reshape(3, -1, 2)
 print(json.dumps({"devices": chain_devices(s), "z": (np.abs(th.mean(1) - est) / se).tolist(),
-                  "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"]}))
+                  "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"],
+                  "z3": (np.abs(th3.mean(1) - est3) / se3).tolist(),
+                  "r_hat3": lock.diagnostics()["r_hat_max"]}))
 """
 
 
 def test_chains_spread_over_cpu_devices():
     """With 2 CPU devices (JAX_NUM_CPU_DEVICES, as `mrjax fit --posterior` sets it) a unit's 4
-    chains run 2 per device, and the posterior is still the least-squares one."""
+    NUTS chains run 2 per device, and ChEES's 3 units in pages on each device (one program
+    per device, no collective), and the posterior is still the least-squares one."""
     import os
     import subprocess
     import sys
@@ -324,6 +334,8 @@ def test_chains_spread_over_cpu_devices():
     np.testing.assert_array_less(out["z"], 0.3)
     np.testing.assert_allclose(out["sd"], 1.0, atol=0.2)
     assert out["r_hat"] < 1.02
+    np.testing.assert_array_less(out["z3"], 0.4)
+    assert out["r_hat3"] < 1.03
 
 
 def test_core_ar1_recovers_rho_and_widens_intervals():

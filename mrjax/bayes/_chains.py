@@ -28,7 +28,7 @@ import numpy as np
 
 from ._noise import log1m_tanh2
 from ._priors import to_box
-from ._sampler import JITTER, LINEAR_BATCH, Sampler, chain_devices, tick, vectorized
+from ._sampler import JITTER, LINEAR_BATCH, Sampler, tick, vectorized
 from ._start import linear_draw, log_density
 
 
@@ -90,14 +90,6 @@ def run_chains(target, prior, sampler, progress, units, z0, L, keys):
     over_chains = jax.vmap(chain, in_axes=(None, None, None, 0))
     if mode == "none":  # one chain after another, in the same compiled program
         over_chains = lambda u, z, m, ks: jax.lax.map(lambda k: chain(u, z, m, k), ks)
-    n_dev = chain_devices(sampler)
-    if n_dev > 1:  # the chains of a unit spread over the CPU devices, one share each
-        from jax.sharding import Mesh, PartitionSpec
-
-        mesh = Mesh(np.asarray(jax.local_devices()[:n_dev]), ("chain",))
-        over_chains = jax.shard_map(over_chains, mesh=mesh, in_specs=(
-            PartitionSpec(), PartitionSpec(), PartitionSpec(), PartitionSpec("chain")),
-            out_specs=PartitionSpec("chain"), check_vma=False)
     if mode == "all":  # one batch of units x chains
         trace, step, warm = jax.vmap(over_chains)(units, z0, L, keys)
     else:  # one unit after another
@@ -334,23 +326,15 @@ def _over_chains(step, sampler: Sampler):
     return lambda keys, states: jax.lax.map(lambda a: step(*a), (keys, states))
 
 
-def _over_units(fn, n_args: int, sampler: Sampler):
+def _over_units(fn, sampler: Sampler):
     """`fn` over the units of a page: vmapped (`Sampler.vectorize` `"all"`: every chain of
-    every unit in one batch, the unit axis sharded over the CPU devices where there are
-    several, the page padded to a multiple of their count by the caller) or mapped (one
-    unit at a time, so that a unit never waits for another's longer trajectories; the caller
-    gives each device pages of its own)."""
-    if vectorized(sampler) != "all":  # the pages spread over the devices by the caller
+    every unit in one batch) or mapped (one unit at a time, so that a unit never waits for
+    another's longer trajectories). Several CPU devices each run pages of their own, side by
+    side (the caller's): one program per device, no collective between them, so a device
+    never waits for another."""
+    if vectorized(sampler) != "all":
         return lambda *a: jax.lax.map(lambda x: fn(*x), a)
-    batched = jax.vmap(fn)
-    n_dev = jax.local_device_count()
-    if n_dev < 2:
-        return batched
-    from jax.sharding import Mesh, PartitionSpec
-
-    mesh = Mesh(np.asarray(jax.local_devices()), ("unit",))
-    return jax.shard_map(batched, mesh=mesh, in_specs=(PartitionSpec("unit"),) * n_args,
-                         out_specs=PartitionSpec("unit"), check_vma=False)
+    return jax.vmap(fn)
 
 
 def _finish(target, prior, units, trace, keys):
@@ -369,7 +353,7 @@ def run_lockstep(target, prior, sampler, progress, units, z0, L, keys):
         trace, after = _lockstep_draws(target, prior, sampler, progress, unit, st, skey)
         return trace, st.step_size, warm, after
 
-    trace, step, warm, after = _over_units(unit_fn, 4, sampler)(units, z0, L, keys)
+    trace, step, warm, after = _over_units(unit_fn, sampler)(units, z0, L, keys)
     return (*_finish(target, prior, units, trace, keys), step, warm, after)
 
 
@@ -382,5 +366,5 @@ def extend_lockstep(target, prior, sampler, progress, units, state, keys):
         return _lockstep_draws(target, prior, sampler, progress, unit, st,
                                jax.random.fold_in(k[0], 2))
 
-    trace, after = _over_units(unit_fn, 3, sampler)(units, state, keys)
+    trace, after = _over_units(unit_fn, sampler)(units, state, keys)
     return (*_finish(target, prior, units, trace, keys), after)

@@ -18,7 +18,7 @@ from ._chains import LockstepState, extend_lockstep, run_chains, run_lockstep
 from ._noise import check_noise, lag_grams
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._sampler import BAR, Sampler, vectorized
+from ._sampler import BAR, Sampler, chain_devices
 from ._start import (
     GRADIENT_TOL,
     Target,
@@ -322,16 +322,23 @@ def _bar(show: bool, total: int):
 def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys, show: bool):
     """The NUTS chains of the units `rows`, with a progress bar where `show`; host arrays."""
     bar = _bar(show, (sampler.warmup + sampler.draws) * rows.size * sampler.chains)
-    units = jax.tree.map(lambda a: a[rows], prep.units)
+    args = (jax.tree.map(lambda a: a[rows], prep.units), jnp.asarray(prep.z0[rows]),
+            jnp.asarray(prep.L[rows]))
+    n_dev = chain_devices(sampler)
     try:
-        out = run_chains(prep.target, su.prior_data, sampler, show, units,
-                         jnp.asarray(prep.z0[rows]), jnp.asarray(prep.L[rows]), keys)
-        out = jax.device_get(jax.block_until_ready(out))
+        outs = []
+        for d, share in enumerate(np.split(np.arange(sampler.chains), n_dev)):
+            # each device its share of every unit's chains, dispatched without waiting
+            own = (*args, keys[:, share])
+            if n_dev > 1:
+                own = jax.device_put(own, jax.local_devices()[d])
+            outs.append(run_chains(prep.target, su.prior_data, sampler, show, *own))
+        outs = jax.device_get(jax.block_until_ready(outs))
     finally:
         BAR[0] = None
         if bar is not None:
             bar.close()
-    return out
+    return jax.tree.map(lambda *a: np.concatenate(a, axis=1), *outs)
 
 
 def _pages(n: int, page: int) -> list[np.ndarray]:
@@ -343,16 +350,15 @@ def _pages(n: int, page: int) -> list[np.ndarray]:
 def _page_size(sampler: Sampler, n: int, first: int | None) -> int:
     """Units per page for `n` units: the kernel's page (:meth:`ChEES.page_size`), in a
     continuation (`first` the first round's page) the smallest power of two that holds them,
-    at most `first` (few compiled shapes); a multiple of the CPU devices the units are
-    sharded over where they are vmapped, else at most an equal share of the units per device
-    (each device runs pages of its own, side by side)."""
+    at most `first` (few compiled shapes); at most an equal share of the units per CPU
+    device (each device runs pages of its own, side by side, no collective between them:
+    XLA aborts a program whose devices wait for each other's collective longer than
+    40 s)."""
     page = sampler.kernel.page_size(n, sampler.chains)
     if first is not None:
         page = min(first, 1 << (n - 1).bit_length())
     d = jax.local_device_count()
-    if vectorized(sampler) != "all":  # units mapped: at least one page per device
-        return max(1, min(page, -(-n // d)))
-    return -(-page // d) * d
+    return max(1, min(page, -(-n // d)))  # at least one page per device
 
 
 def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
@@ -364,7 +370,7 @@ def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarr
     pages = _pages(rows.size, page)
     steps = sampler.draws + (0 if state is not None else sampler.warmup)
     bar = _bar(show, steps * len(pages) * page * sampler.chains)
-    devices = jax.local_devices() if vectorized(sampler) != "all" else []
+    devices = jax.local_devices()
     outs = []
     try:
         for i, idx in enumerate(pages):  # dispatched without waiting: pages on several

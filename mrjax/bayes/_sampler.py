@@ -198,7 +198,7 @@ class Sampler(eqx.Module):
         model on a record) the batch only adds work (`benchmarks/posterior.md`). With
         several CPU devices the chains of a unit are also spread over them
         (:func:`chain_devices`). ChEES: `"all"` vmaps every chain of every unit of a page
-        (its units sharded over several CPU devices), `"chains"` vmaps the chains of one unit
+        (with several CPU devices, each runs pages of its own), `"chains"` vmaps the chains of one unit
         at a time, `"none"` steps them one after another (still in lockstep: one step size
         and trajectory length per unit); `None`: `"all"` on an accelerator or for a
         forward-mode gradient, else `"chains"` (a static model: its units' trajectory
