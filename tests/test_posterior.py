@@ -115,6 +115,24 @@ def test_units_of_different_lengths_are_drawn_cut_to_their_group():
     np.testing.assert_allclose(cut.sigma, whole.sigma, rtol=1e-7)
 
 
+def test_per_test_likelihood_cuts_records_to_their_first_samples():
+    """The per-test kind's `Likelihood.trim` (a dynamic model, one time step per sample): the
+    residuals of records cut to their first n samples are the first n of the uncut ones."""
+    from mrjax.fitting import tests_problem
+
+    batch, truth = short_batch("dahl")
+    lk = tests_problem("dahl", batch).likelihood(truth, False)
+    n = int(np.asarray(batch.mask).sum(axis=1).min())
+    cut = lk.trim(lk.data, n)
+    assert all(np.shape(a)[-1] in (n,) for a in cut if np.ndim(a) == 2)
+    for i in range(2):
+        unit = lambda d: jax.tree.map(lambda a: a[i], d)  # noqa: B023 - used at once
+        (r, m), = lk.residual(jnp.asarray(truth[i]), unit(lk.data))
+        (rc, mc), = lk.residual(jnp.asarray(truth[i]), unit(cut))
+        np.testing.assert_allclose(rc, r[:, :n], rtol=1e-12, atol=1e-9)
+        np.testing.assert_array_equal(mc, m[:, :n])
+
+
 def test_core_matches_least_squares_posterior():
     """Flat priors, iid noise: the posterior of a line is centred on least squares with its
     std-errors (large n: the Student-t is nearly normal); the noise level is the residuals'

@@ -259,9 +259,11 @@ class TestsProblem(AbstractProblem):
 
 
 def cut_records(data: tuple, n: int) -> tuple:
-    """The per-test likelihood's data `(x, xdot, dt, force, mask)` (leading test axis)
-    cut to the first `n` samples of every record (`Likelihood.trim`)."""
+    """The per-test likelihood's data `(x, xdot, dt, force, mask)` (leading test axis;
+    `dt` one step per record or one per sample) cut to the first `n` samples of every record
+    (`Likelihood.trim`)."""
     x, xdot, dt, force, mask = data
+    dt = dt[:, :n] if jnp.ndim(dt) == 2 else dt
     return x[:, :n], xdot[:, :n], dt, force[:, :n], mask[:, :n]
 
 
