@@ -324,21 +324,28 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
     bar = _bar(show, (sampler.warmup + sampler.draws) * rows.size * sampler.chains)
     args = (jax.tree.map(lambda a: a[rows], prep.units), jnp.asarray(prep.z0[rows]),
             jnp.asarray(prep.L[rows]))
-    n_dev = chain_devices(sampler)
-    try:
-        outs = []
-        for d, share in enumerate(np.split(np.arange(sampler.chains), n_dev)):
-            # each device its share of every unit's chains, dispatched without waiting
-            own = (*args, keys[:, share])
-            if n_dev > 1:
-                own = jax.device_put(own, jax.local_devices()[d])
-            outs.append(run_chains(prep.target, su.prior_data, sampler, show, *own))
-        outs = jax.device_get(jax.block_until_ready(outs))
+    run = lambda *a: run_chains(prep.target, su.prior_data, sampler, show, *a)
+    try:  # each device its share of every unit's chains
+        outs = _spread([(run, (*args, keys[:, share])) for share in
+                        np.split(np.arange(sampler.chains), chain_devices(sampler))])
     finally:
         BAR[0] = None
         if bar is not None:
             bar.close()
     return jax.tree.map(lambda *a: np.concatenate(a, axis=1), *outs)
+
+
+def _spread(calls: list) -> list:
+    """`calls` `[(fn, args), ...]`, call i on CPU device i modulo their count, all
+    dispatched before any is waited for (the devices run side by side, each its own
+    program: no collective between them), then their host outputs in order."""
+    devices = jax.local_devices()
+    outs = []
+    for i, (fn, args) in enumerate(calls):
+        if len(devices) > 1:
+            args = jax.device_put(args, devices[i % len(devices)])
+        outs.append(fn(*args))
+    return jax.device_get(jax.block_until_ready(outs))
 
 
 def _pages(n: int, page: int) -> list[np.ndarray]:
@@ -370,26 +377,21 @@ def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarr
     pages = _pages(rows.size, page)
     steps = sampler.draws + (0 if state is not None else sampler.warmup)
     bar = _bar(show, steps * len(pages) * page * sampler.chains)
-    devices = jax.local_devices()
-    outs = []
+    if state is None:
+        run = lambda u, k, z0, L: run_lockstep(prep.target, su.prior_data, sampler, show,
+                                               u, z0, L, k)
+    else:
+        run = lambda u, k, st: extend_lockstep(prep.target, su.prior_data, sampler, show,
+                                               u, st, k)
+    calls = []
+    for idx in pages:
+        r = rows[idx]
+        rest = ((jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r])) if state is None
+                else (jax.tree.map(lambda a: a[idx], state),))
+        calls.append((run, (jax.tree.map(lambda a: a[r], prep.units), keys[idx], *rest)))
     try:
-        for i, idx in enumerate(pages):  # dispatched without waiting: pages on several
-            # devices run side by side
-            r = rows[idx]
-            own = (jax.tree.map(lambda a: a[r], prep.units), keys[idx],
-                   (jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r])) if state is None
-                   else jax.tree.map(lambda a: a[idx], state))
-            if len(devices) > 1:
-                own = jax.device_put(own, devices[i % len(devices)])
-            units, k, rest = own
-            if state is None:
-                out = run_lockstep(prep.target, su.prior_data, sampler, show, units, *rest, k)
-            else:
-                out = extend_lockstep(prep.target, su.prior_data, sampler, show, units, rest,
-                                      k)
-            outs.append((len(np.unique(idx)), out))
-        outs = [jax.tree.map(lambda a: a[:n], jax.device_get(jax.block_until_ready(out)))
-                for n, out in outs]
+        outs = [jax.tree.map(lambda a: a[:len(np.unique(idx))], out)
+                for idx, out in zip(pages, _spread(calls))]
     finally:
         BAR[0] = None
         if bar is not None:
