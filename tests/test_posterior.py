@@ -115,6 +115,40 @@ def test_units_of_different_lengths_are_drawn_cut_to_their_group():
     np.testing.assert_allclose(cut.sigma, whole.sigma, rtol=1e-7)
 
 
+def test_pages_of_similar_trajectory_length_spread_over_devices():
+    """The draws' pages hold units of similar adapted trajectory length (a vmapped page
+    advances at its longest), of the one size that leaves the busiest device the least
+    predicted work; calls go to devices longest first, each to the least loaded."""
+    from mrjax.bayes._pages import assign, page_cost, sorted_pages
+
+    where, work = assign([5.0, 4.0, 3.0, 3.0, 3.0], 2)
+    assert where.tolist() == [0, 1, 1, 0, 1] and work == 10.0
+    assert assign([2.0, 1.0], 1) == (pytest.approx(np.zeros(2)), 3.0)
+    s = Sampler(chains=2, vectorize="all", kernel=ChEES())
+    n = np.array([5.0, 30.0, 6.0, 29.0])
+    # pages of 2 sorted units (6 x 14 + 30 x 14) cost less than one of 4 (30 x 22) or four
+    # of 1 ((5 + 6 + 29 + 30) x 10), with the fixed cost of a step of 6 chains
+    assert page_cost(n, s) == 30.0 * 14.0
+    assert [sorted(p.tolist()) for p in sorted_pages(n, s, 4, 1)] == [[0, 2], [1, 3]]
+    # mapped units (not vmapped) never wait: one page of all of them
+    m = dataclasses.replace(s, vectorize="chains")
+    assert [sorted(p.tolist()) for p in sorted_pages(n, m, 4, 1)] == [[0, 1, 2, 3]]
+
+
+def test_chees_draws_do_not_depend_on_the_pages():
+    """A unit's ChEES draws are its own whatever page it runs in: the same (to rounding) with
+    the 5 units in one page, in pages of 2 (the last padded) and one by one."""
+    data, _ = line_data(U=5)
+    est = ols(data)[0]
+    runs = [box_sample(Line(), est, data, sampler=Sampler(
+        draws=30, chains=2, warmup=30, continuations=0, vectorize="all",
+        kernel=ChEES(page=p))) for p in (5, 2, 1)]
+    for other in runs[1:]:
+        np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(other.step_size, runs[0].step_size, rtol=1e-7)
+        np.testing.assert_array_equal(other.warmup_steps, runs[0].warmup_steps)
+
+
 def test_per_test_likelihood_cuts_records_to_their_first_samples():
     """The per-test kind's `Likelihood.trim` (a dynamic model, one time step per sample): the
     residuals of records cut to their first n samples are the first n of the uncut ones."""

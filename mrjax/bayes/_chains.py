@@ -7,13 +7,14 @@ posterior's mode; see `mrjax.bayes.sample`):
 - :func:`run_chains`, NUTS (`blackjax.window_adaptation` + `blackjax.nuts`): every chain its
     own step size, mass matrix and trajectories; chains and units mapped or vmapped
     (`Sampler.vectorize`);
-- :func:`run_lockstep`, ChEES-HMC (`blackjax.chees_adaptation` + `blackjax.dynamic_hmc`): the
-    chains of a unit share one step size and one jittered trajectory length, tuned from all
-    of them at once, so that every chain of every unit of a page takes the same number of
-    leapfrog steps at each draw and one vmapped batch advances them all without waiting for
-    a longest tree. The mass matrix of each unit is re-estimated from its chains during the
-    warmup (the coordinates re-whitened by their covariance); :func:`extend_lockstep`
-    continues such chains from where they stopped.
+- :func:`warm_lockstep` then :func:`extend_lockstep`, ChEES-HMC (`blackjax.chees_adaptation`
+    + `blackjax.dynamic_hmc`): the chains of a unit share one step size and one jittered
+    trajectory length, tuned from all of them at once, so that every chain of every unit of
+    a page takes the same number of leapfrog steps at each draw and one vmapped batch
+    advances them all without waiting for a longest tree. The mass matrix of each unit is
+    re-estimated from its chains during the warmup (the coordinates re-whitened by their
+    covariance); :func:`extend_lockstep` draws from where the warmup or earlier draws
+    stopped.
 
 Both return the draws in SI units (the box map, the noise transforms and the draws of the
 unknowns integrated out applied in the program, :func:`to_si`).
@@ -343,28 +344,25 @@ def _finish(target, prior, units, trace, keys):
 
 
 @eqx.filter_jit
-def run_lockstep(target, prior, sampler, progress, units, z0, L, keys):
-    """ChEES: warmup and draws of every chain of every unit of a page in one compiled
-    program, all chains of all units vmapped in one batch. Returns `(theta, sigma, rho,
-    (lp, diverging, steps, accept), step_size (U,), warmup_steps (U,), LockstepState)`."""
+def warm_lockstep(target, prior, sampler, progress, units, z0, L, keys):
+    """The ChEES warmup of every chain of every unit of a page in one compiled program (the
+    units vmapped or mapped, `Sampler.vectorize`): `(LockstepState, warmup leapfrog steps per
+    chain (U,))`; the draws then by :func:`extend_lockstep` with `fresh=True`."""
     def unit_fn(unit, z, m, k):
-        wkey, skey = jax.random.split(k[0])
-        st, warm = _lockstep_warmup(target, prior, sampler, progress, unit, z, m, wkey)
-        trace, after = _lockstep_draws(target, prior, sampler, progress, unit, st, skey)
-        return trace, st.step_size, warm, after
+        return _lockstep_warmup(target, prior, sampler, progress, unit, z, m,
+                                jax.random.split(k[0])[0])
 
-    trace, step, warm, after = _over_units(unit_fn, sampler)(units, z0, L, keys)
-    return (*_finish(target, prior, units, trace, keys), step, warm, after)
+    return _over_units(unit_fn, sampler)(units, z0, L, keys)
 
 
 @eqx.filter_jit
-def extend_lockstep(target, prior, sampler, progress, units, state, keys):
-    """More draws of ChEES chains from where they stopped (`state`, a batched
-    :class:`LockstepState`): `(theta, sigma, rho, (lp, diverging, steps, accept),
-    LockstepState)`."""
+def extend_lockstep(target, prior, sampler, progress, units, state, keys, fresh=False):
+    """Draws of ChEES chains from where they stopped (`state`, a batched
+    :class:`LockstepState`): the first draws after the warmup (`fresh`) or more of them.
+    Returns `(theta, sigma, rho, (lp, diverging, steps, accept), LockstepState)`."""
     def unit_fn(unit, st, k):
-        return _lockstep_draws(target, prior, sampler, progress, unit, st,
-                               jax.random.fold_in(k[0], 2))
+        key = jax.random.split(k[0])[1] if fresh else jax.random.fold_in(k[0], 2)
+        return _lockstep_draws(target, prior, sampler, progress, unit, st, key)
 
     trace, after = _over_units(unit_fn, sampler)(units, state, keys)
     return (*_finish(target, prior, units, trace, keys), after)

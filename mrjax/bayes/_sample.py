@@ -14,8 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._chains import LockstepState, extend_lockstep, run_chains, run_lockstep
+from ._chains import extend_lockstep, run_chains, warm_lockstep
 from ._noise import check_noise, lag_grams
+from ._pages import page_cost, page_size, pages, sorted_pages, spread
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
 from ._sampler import BAR, Sampler, chain_devices
@@ -326,7 +327,7 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
             jnp.asarray(prep.L[rows]))
     run = lambda *a: run_chains(prep.target, su.prior_data, sampler, show, *a)
     try:  # each device its share of every unit's chains
-        outs = _spread([(run, (*args, keys[:, share])) for share in
+        outs = spread([(run, (*args, keys[:, share])) for share in
                         np.split(np.arange(sampler.chains), chain_devices(sampler))])
     finally:
         BAR[0] = None
@@ -335,68 +336,43 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
     return jax.tree.map(lambda *a: np.concatenate(a, axis=1), *outs)
 
 
-def _spread(calls: list) -> list:
-    """`calls` `[(fn, args), ...]`, call i on CPU device i modulo their count, all
-    dispatched before any is waited for (the devices run side by side, each its own
-    program: no collective between them), then their host outputs in order."""
-    devices = jax.local_devices()
-    outs = []
-    for i, (fn, args) in enumerate(calls):
-        if len(devices) > 1:
-            args = jax.device_put(args, devices[i % len(devices)])
-        outs.append(fn(*args))
-    return jax.device_get(jax.block_until_ready(outs))
+def _join(n: int, cuts: list[np.ndarray], outs: list):
+    """Outputs `outs` of the units `cuts` (index arrays; a padded page repeats an index) as
+    one pytree of host arrays whose leading axis holds the `n` units."""
+    def put(*leaves):
+        full = np.empty((n,) + np.shape(leaves[0])[1:], np.asarray(leaves[0]).dtype)
+        for cut, a in zip(cuts, leaves):
+            full[cut] = a
+        return full
+
+    return jax.tree.map(put, *outs)
 
 
-def _pages(n: int, page: int) -> list[np.ndarray]:
-    """Indices `0..n-1` in pages of `page`, the last padded by repeating its last index (one
-    compiled shape for all pages)."""
-    return [np.minimum(np.arange(s, s + page), n - 1) for s in range(0, n, page)]
+def _warm_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
+                first: int | None, show: bool):
+    """The calls of the ChEES warmup of a group's units `local` in pages: `(calls, the
+    pages' unit positions in local, the page size)`."""
+    page = page_size(sampler, local.size, first)
+    run = lambda *a: warm_lockstep(prep.target, su.prior_data, sampler, show, *a)
+    cuts = pages(local.size, page)
+    calls = [(run, (_take(prep.units, local[c]), jnp.asarray(prep.z0[local[c]]),
+                    jnp.asarray(prep.L[local[c]]), keys[c])) for c in cuts]
+    return calls, cuts, page
 
 
-def _page_size(sampler: Sampler, n: int, first: int | None) -> int:
-    """Units per page for `n` units: the kernel's page (:meth:`ChEES.page_size`), in a
-    continuation (`first` the first round's page) the smallest power of two that holds them,
-    at most `first` (few compiled shapes); at most an equal share of the units per CPU
-    device (each device runs pages of its own, side by side, no collective between them:
-    XLA aborts a program whose devices wait for each other's collective longer than
-    40 s)."""
-    page = sampler.kernel.page_size(n, sampler.chains)
-    if first is not None:
-        page = min(first, 1 << (n - 1).bit_length())
-    d = jax.local_device_count()
-    return max(1, min(page, -(-n // d)))  # at least one page per device
-
-
-def _draw_lockstep(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
-                   show: bool, state: LockstepState | None = None, first: int | None = None):
-    """The ChEES chains of the units `rows` in pages (:func:`_page_size`): warmup and draws
-    from the mode, or (`state`, the chains' last state per row) draws that extend them; host
-    arrays, the units' last state, and the page size."""
-    page = _page_size(sampler, rows.size, first)
-    pages = _pages(rows.size, page)
-    steps = sampler.draws + (0 if state is not None else sampler.warmup)
-    bar = _bar(show, steps * len(pages) * page * sampler.chains)
-    if state is None:
-        run = lambda u, k, z0, L: run_lockstep(prep.target, su.prior_data, sampler, show,
-                                               u, z0, L, k)
-    else:
-        run = lambda u, k, st: extend_lockstep(prep.target, su.prior_data, sampler, show,
-                                               u, st, k)
-    calls = []
-    for idx in pages:
-        r = rows[idx]
-        rest = ((jnp.asarray(prep.z0[r]), jnp.asarray(prep.L[r])) if state is None
-                else (jax.tree.map(lambda a: a[idx], state),))
-        calls.append((run, (jax.tree.map(lambda a: a[r], prep.units), keys[idx], *rest)))
-    try:
-        outs = [jax.tree.map(lambda a: a[:len(np.unique(idx))], out)
-                for idx, out in zip(pages, _spread(calls))]
-    finally:
-        BAR[0] = None
-        if bar is not None:
-            bar.close()
-    return jax.tree.map(lambda *a: np.concatenate(a), *outs), page
+def _draw_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
+                state, most: int, fresh: bool, show: bool):
+    """The calls of a group's units `local` drawing from their chains' `state` (host arrays,
+    in the order of `local`), in pages of units of similar trajectory length
+    (:func:`mrjax.bayes._pages.sorted_pages`, at most `most` units): `(calls, their
+    predicted costs, the pages' unit positions in local)`."""
+    n = np.asarray(state.n_leapfrog, float)
+    cuts = sorted_pages(n, sampler, most, jax.local_device_count())
+    run = lambda *a: extend_lockstep(prep.target, su.prior_data, sampler, show, *a,
+                                     fresh=fresh)
+    calls = [(run, (_take(prep.units, local[c]), _take(state, c), keys[c])) for c in cuts]
+    steps = sampler.draws * sampler.thin
+    return calls, [page_cost(n[c], sampler) * steps for c in cuts], cuts
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -513,54 +489,84 @@ class _Run:
                 yield i, pos, np.searchsorted(g.rows, rows[pos])
 
     def draw(self, fn, sampler: Sampler, rows: np.ndarray, round_: int):
-        """`fn(group index, rows within the group, their keys) -> (out, extra)` for the units
-        `rows`, group by group: the outs joined, their unit axes in the order of `rows`, and
-        {group index: extra}."""
-        outs, extra = [], {}
-        for i, pos, local in self.split(rows):
-            out, extra[i] = fn(i, local, _unit_keys(self.key, rows[pos], sampler.chains,
-                                                     round_))
-            outs.append((pos, out))
-        if len(outs) == 1 and np.array_equal(outs[0][0], np.arange(rows.size)):
-            return outs[0][1], extra
-
-        def put(*leaves):
-            full = np.empty((rows.size,) + leaves[0].shape[1:], leaves[0].dtype)
-            for (pos, _), a in zip(outs, leaves):
-                full[pos] = a
-            return full
-
-        return jax.tree.map(put, *[o for _, o in outs]), extra
+        """`fn(group index, rows within the group, their keys) -> out` for the units `rows`,
+        group by group: the outs joined, their unit axes in the order of `rows`."""
+        parts = list(self.split(rows))
+        outs = [fn(i, local, _unit_keys(self.key, rows[pos], sampler.chains, round_))
+                for i, pos, local in parts]
+        return _join(rows.size, [pos for _, pos, _ in parts], outs)
 
     def nuts(self, sampler: Sampler) -> Posterior:
         """NUTS: a continued unit runs again from the mode, 2^r x the warmup and draws."""
         def fn(s):
-            return lambda i, local, keys: (_draw(self.groups[i].prep, self.su, s, local, keys,
-                                                 self.show), None)
+            return lambda i, local, keys: _draw(self.groups[i].prep, self.su, s, local, keys,
+                                                self.show)
 
         every = np.arange(self.su.theta0.shape[0])
-        post = self.post(sampler, self.draw(fn(sampler), sampler, every, 0)[0])
+        post = self.post(sampler, self.draw(fn(sampler), sampler, every, 0))
         for r in range(1, sampler.continuations + 1):
             rows = np.flatnonzero(post.unconverged())
             if rows.size == 0:
                 break
             s_r = sampler.continued(r, bool(post.diverging[rows].any()))
-            post = post.with_units(rows, self.post(s_r, self.draw(fn(s_r), sampler, rows, r)[0]),
+            post = post.with_units(rows, self.post(s_r, self.draw(fn(s_r), sampler, rows, r)),
                                    r)
         return post
 
+    def paged(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict,
+              states: dict | None = None):
+        """ChEES chains of the units `rows`, every group's pages dispatched over the devices
+        before any is waited for: the warmup from the mode (`states` None), then draws in
+        pages of units of similar trajectory length; or (`states`, {group: its chains' last
+        state}) draws that extend them. Returns `(draws (in the order of rows), {group:
+        (the units' positions in the group, their state after, the warmup's page size,
+        their warmup leapfrog steps)})`."""
+        parts = list(self.split(rows))
+        keys = [_unit_keys(self.key, rows[pos], sampler.chains, round_) for _, pos, _ in parts]
+        fresh = states is None
+        bar = _bar(self.show, (sampler.warmup * fresh + sampler.draws * sampler.thin)
+                   * rows.size * sampler.chains)
+        try:
+            warm, page = {}, {}
+            if fresh:
+                calls, cuts = [], []
+                for (i, _, local), k in zip(parts, keys):
+                    c, cut, page[i] = _warm_calls(self.groups[i].prep, self.su, sampler,
+                                                  local, k, first.get(i), self.show)
+                    calls, cuts = calls + c, cuts + [(i, x) for x in cut]
+                outs = spread(calls, [x.size for _, x in cuts])
+                states = {}
+                for i, _, local in parts:
+                    mine = [(x, o) for (g, x), o in zip(cuts, outs) if g == i]
+                    states[i], warm[i] = _join(local.size, *zip(*mine))
+            calls, costs, cuts = [], [], []
+            for (i, _, local), k in zip(parts, keys):
+                st = states[i] if fresh else _take(states[i], local)
+                most = page.get(i) or page_size(sampler, local.size, first.get(i))
+                c, co, cut = _draw_calls(self.groups[i].prep, self.su, sampler, local, k, st,
+                                         most, fresh, self.show)
+                calls, costs, cuts = calls + c, costs + co, cuts + [(i, x) for x in cut]
+            outs = spread(calls, costs)
+        finally:
+            BAR[0] = None
+            if bar is not None:
+                bar.close()
+        joined, extra = [], {}
+        for i, pos, local in parts:
+            *draws, after = _join(local.size, *zip(*[(x, o) for (g, x), o in zip(cuts, outs)
+                                                     if g == i]))
+            joined.append(tuple(draws))
+            extra[i] = (local, after, page.get(i), warm.get(i))
+        return _join(rows.size, [pos for _, pos, _ in parts], joined), extra
+
     def fresh(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict):
         """ChEES warmup and draws of the units `rows` from the mode: `(Posterior of those
-        units, {group: (its chains' last state, the page size)})`."""
-        def fn(i, local, keys):
-            out, page = _draw_lockstep(self.groups[i].prep, self.su, sampler, local, keys,
-                                       self.show, first=first.get(i))
-            *draws, step, warm, state = out
-            C = sampler.chains
-            out = (*draws, np.repeat(step[:, None], C, 1), np.repeat(warm[:, None], C, 1))
-            return out, {"state": state, "page": page}
-
-        out, extra = self.draw(fn, sampler, rows, round_)
+        units, {group: (positions in the group, its chains' last state, the page size)})`."""
+        draws, extra = self.paged(sampler, rows, round_, first)
+        C = sampler.chains
+        step = _join(rows.size, [pos for _, pos, _ in self.split(rows)],
+                     [(e[1].step_size, e[3]) for e in extra.values()])
+        out = (*draws, np.repeat(step[0][:, None], C, 1), np.repeat(step[1][:, None], C, 1))
         return self.post(sampler, out), extra
 
     def lockstep(self, sampler: Sampler) -> Posterior:
@@ -569,8 +575,8 @@ class _Run:
         mode with 2^r x the warmup and a higher target acceptance."""
         every = np.arange(self.su.theta0.shape[0])
         post, extra = self.fresh(sampler, every, 0, {})
-        states = {i: e["state"] for i, e in extra.items()}
-        first = {i: e["page"] for i, e in extra.items()}
+        states = {i: e[1] for i, e in extra.items()}
+        first = {i: e[2] for i, e in extra.items()}
         for r in range(1, sampler.continuations + 1):
             rows = np.flatnonzero(post.unconverged())
             if rows.size == 0:
@@ -579,8 +585,8 @@ class _Run:
             if div.any():
                 new, extra = self.fresh(sampler.continued(r, True), rows[div], r, first)
                 post = post.with_units(rows[div], new, r)
-                for i, pos, local in self.split(rows[div]):
-                    states[i] = _set_rows(states[i], local, extra[i]["state"])
+                for i, e in extra.items():
+                    states[i] = _set_rows(states[i], e[0], e[1])
             if (~div).any():
                 post = self.extend(sampler, post, states, rows[~div], r, first)
         return post
@@ -592,15 +598,9 @@ class _Run:
         every 2^r-th step kept); `states` updated in place."""
         N = post.n_draws
         s_r = dataclasses.replace(sampler, draws=N - N // 2, thin=sampler.thin * 2 ** r)
-
-        def fn(i, local, keys):
-            out, _ = _draw_lockstep(self.groups[i].prep, self.su, s_r, local, keys, self.show,
-                                    state=_take(states[i], local), first=first.get(i))
-            *draws, st = out
-            states[i] = _set_rows(states[i], local, st)
-            return tuple(draws), None
-
-        draws, _ = self.draw(fn, sampler, rows, r)
+        draws, extra = self.paged(s_r, rows, r, first, states)
+        for i, e in extra.items():
+            states[i] = _set_rows(states[i], e[0], e[1])
         old = (post.theta, post.sigma, post.rho, (post.lp, post.diverging, post.n_steps,
                                                     post.accept))
         both = jax.tree.map(lambda a, b: np.concatenate([a[rows][:, :, 1::2], b], axis=2),

@@ -1,0 +1,101 @@
+"""Pages of units and where they run: how the sampler's compiled calls are cut and spread over
+the CPU devices (or the one accelerator).
+
+A call runs one page of units, padded to one compiled shape; several CPU devices each run
+calls of their own side by side (no collective between them: XLA aborts a program whose
+devices wait for each other's collective longer than 40 s). The calls are given to the
+devices longest first, each to the device with the least work so far (:func:`assign`), and
+all are dispatched before any is waited for, so that the devices stay busy to the end.
+ChEES's draws run in pages of units of similar adapted trajectory length
+(:func:`sorted_pages`): a vmapped page advances at its longest trajectory, so a short unit
+paged with a long one waits for it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import jax
+import numpy as np
+
+from ._sampler import Sampler, vectorized
+
+#: The fixed cost of one batched step of a page, in chains' gradients: a batch of c chains of
+#: a dynamic model's views costs about (PAGE_OVERHEAD + c) single chains' gradients (the
+#: integration's loop runs once for the batch; `benchmarks/posterior.md`).
+PAGE_OVERHEAD = 6.0
+
+
+def pages(n: int, page: int) -> list[np.ndarray]:
+    """Indices `0..n-1` in pages of `page`, the last padded by repeating its last index (one
+    compiled shape for all pages)."""
+    return [np.minimum(np.arange(s, s + page), n - 1) for s in range(0, n, page)]
+
+
+def page_size(sampler: Sampler, n: int, first: int | None) -> int:
+    """Units per page for `n` units: the kernel's page (:meth:`ChEES.page_size`), in a
+    continuation (`first` the first round's page) the smallest power of two that holds them,
+    at most `first` (few compiled shapes); at most an equal share of the units per CPU
+    device (each device runs pages of its own)."""
+    page = sampler.kernel.page_size(n, sampler.chains)
+    if first is not None:
+        page = min(first, 1 << (n - 1).bit_length())
+    d = jax.local_device_count()
+    return max(1, min(page, -(-n // d)))  # at least one page per device
+
+
+def assign(costs: Sequence[float], n_devices: int) -> tuple[np.ndarray, float]:
+    """Devices for calls of predicted `costs` (longest processing time first: each call, the
+    costliest first, to the device with the least work so far): `(device of each call,
+    the busiest device's work)`."""
+    load = np.zeros(max(int(n_devices), 1))
+    where = np.zeros(len(costs), int)
+    for i in np.argsort(-np.asarray(costs, float), kind="stable"):
+        where[i] = int(np.argmin(load))
+        load[where[i]] += costs[i]
+    return where, float(load.max(initial=0.0))
+
+
+def page_cost(n_leapfrog: np.ndarray, sampler: Sampler) -> float:
+    """Predicted cost of one step of a page whose units take `n_leapfrog` (page,) mean
+    leapfrog steps per draw, in chains' gradients: its units vmapped (`"all"`) wait for the
+    longest; mapped ones each take their own."""
+    C = sampler.chains
+    n = np.asarray(n_leapfrog, float)
+    if vectorized(sampler) == "all":
+        return float(n.max()) * (PAGE_OVERHEAD + n.size * C)
+    return float(np.sum(n)) * (PAGE_OVERHEAD + C)
+
+
+def sorted_pages(n_leapfrog: np.ndarray, sampler: Sampler, most: int,
+                 n_devices: int) -> list[np.ndarray]:
+    """The units of adapted trajectory lengths `n_leapfrog` (U,) in pages of one size (one
+    compiled shape) of units of similar length: the size among `most`, `most / 2`, ... that
+    leaves the busiest device the least predicted work (:func:`page_cost`, :func:`assign`)."""
+    order = np.argsort(np.asarray(n_leapfrog, float), kind="stable")
+    best, best_work = None, np.inf
+    size = max(int(most), 1)
+    while True:
+        cut = [order[idx] for idx in pages(order.size, size)]
+        _, work = assign([page_cost(n_leapfrog[p], sampler) for p in cut], n_devices)
+        if work < best_work * (1.0 - 1e-9):  # a smaller size only where it saves work
+            best, best_work = cut, work
+        if size == 1:
+            return best
+        size = max(size // 2, 1)
+
+
+def spread(calls: list[tuple[Callable, tuple]], costs: Sequence[float] | None = None) -> list:
+    """`calls` `[(fn, args), ...]` on the local devices (:func:`assign` by `costs`, or in
+    turn), all dispatched before any is waited for, each device's costliest first; their host
+    outputs in the order of `calls`."""
+    devices = jax.local_devices()
+    costs = np.ones(len(calls)) if costs is None else np.asarray(costs, float)
+    where, _ = assign(costs, len(devices))
+    outs: list = [None] * len(calls)
+    for i in np.argsort(-costs, kind="stable"):
+        fn, args = calls[i]
+        if len(devices) > 1:
+            args = jax.device_put(args, devices[where[i]])
+        outs[i] = fn(*args)
+    return jax.device_get(jax.block_until_ready(outs))
