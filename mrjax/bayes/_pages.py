@@ -4,8 +4,8 @@ the CPU devices (or the one accelerator).
 A call runs one page of units, padded to one compiled shape; several CPU devices each run
 calls of their own side by side (no collective between them: XLA aborts a program whose
 devices wait for each other's collective longer than 40 s). The calls are given to the
-devices longest first, each to the device with the least work so far (:func:`assign`), and
-all are dispatched before any is waited for, so that the devices stay busy to the end.
+devices longest first, each to the device with the least work so far (:func:`assign`), one
+host thread per device, so that the devices stay busy to the end.
 ChEES's draws run in pages of units of similar adapted trajectory length
 (:func:`sorted_pages`): a vmapped page advances at its longest trajectory, so a short unit
 paged with a long one waits for it.
@@ -14,6 +14,7 @@ paged with a long one waits for it.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import numpy as np
@@ -87,15 +88,31 @@ def sorted_pages(n_leapfrog: np.ndarray, sampler: Sampler, most: int,
 
 def spread(calls: list[tuple[Callable, tuple]], costs: Sequence[float] | None = None) -> list:
     """`calls` `[(fn, args), ...]` on the local devices (:func:`assign` by `costs`, or in
-    turn), all dispatched before any is waited for, each device's costliest first; their host
-    outputs in the order of `calls`."""
+    turn), each device's costliest first, the devices side by side: one host thread per
+    device (a compiled call of `equinox.filter_jit` returns only when its outputs are ready,
+    so calls made one after another from one thread would run one device at a time). Their
+    host outputs in the order of `calls`."""
     devices = jax.local_devices()
     costs = np.ones(len(calls)) if costs is None else np.asarray(costs, float)
     where, _ = assign(costs, len(devices))
+    order = np.argsort(-costs, kind="stable")
+
+    def run(d: int) -> list:
+        done = []
+        for i in order[where[order] == d]:
+            fn, args = calls[i]
+            if len(devices) > 1:
+                args = jax.device_put(args, devices[d])
+            done.append((i, jax.device_get(fn(*args))))
+        return done
+
+    busy = sorted(set(where.tolist()))
+    if len(busy) == 1:
+        parts = [run(busy[0])]
+    else:
+        with ThreadPoolExecutor(max_workers=len(busy)) as pool:
+            parts = list(pool.map(run, busy))
     outs: list = [None] * len(calls)
-    for i in np.argsort(-costs, kind="stable"):
-        fn, args = calls[i]
-        if len(devices) > 1:
-            args = jax.device_put(args, devices[where[i]])
-        outs[i] = fn(*args)
-    return jax.device_get(jax.block_until_ready(outs))
+    for i, out in (x for part in parts for x in part):
+        outs[i] = out
+    return outs

@@ -515,8 +515,8 @@ class _Run:
 
     def paged(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict,
               states: dict | None = None):
-        """ChEES chains of the units `rows`, every group's pages dispatched over the devices
-        before any is waited for: the warmup from the mode (`states` None), then draws in
+        """ChEES chains of the units `rows`, every group's pages spread over the devices
+        together (:func:`mrjax.bayes._pages.spread`): the warmup from the mode (`states` None), then draws in
         pages of units of similar trajectory length; or (`states`, {group: its chains' last
         state}) draws that extend them. Returns `(draws (in the order of rows), {group:
         (the units' positions in the group, their state after, the warmup's page size,
