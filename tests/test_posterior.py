@@ -143,6 +143,7 @@ def test_chees_draws_do_not_depend_on_the_pages():
     runs = [box_sample(Line(), est, data, sampler=Sampler(
         draws=30, chains=2, warmup=30, continuations=0, vectorize="all",
         kernel=ChEES(page=p))) for p in (5, 2, 1)]
+    assert {"warmup", "draws", "sample", "mode"} <= set(runs[0].timings)
     for other in runs[1:]:
         np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-7, atol=1e-9)
         np.testing.assert_allclose(other.step_size, runs[0].step_size, rtol=1e-7)
@@ -362,7 +363,15 @@ c = Sampler(draws=200, chains=4, warmup=150, vectorize="all", continuations=0,
 lock = sample(Likelihood(Line(), est3, data3, lower=[-10, -10], upper=[10, 10],
                          names=("a", "b")), sampler=c)
 th3 = lock.theta.reshape(3, -1, 2)
-print(json.dumps({"devices": chain_devices(s), "z": (np.abs(th.mean(1) - est) / se).tolist(),
+import threading
+from mrjax.bayes._pages import spread
+meet = threading.Barrier(2, timeout=60)  # broken unless both devices' calls run at once
+def on_device(x):
+    meet.wait()
+    return next(iter(x.devices())).id
+print(json.dumps({"devices": chain_devices(s),
+                  "together": spread([(on_device, (np.zeros(1),))] * 2, [2.0, 1.0]),
+                  "z": (np.abs(th.mean(1) - est) / se).tolist(),
                   "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"],
                   "z3": (np.abs(th3.mean(1) - est3) / se3).tolist(),
                   "r_hat3": lock.diagnostics()["r_hat_max"]}))
@@ -372,7 +381,8 @@ print(json.dumps({"devices": chain_devices(s), "z": (np.abs(th.mean(1) - est) / 
 def test_chains_spread_over_cpu_devices():
     """With 2 CPU devices (JAX_NUM_CPU_DEVICES, as `mrjax fit --posterior` sets it) a unit's 4
     NUTS chains run 2 per device, and ChEES's 3 units in pages on each device (one program
-    per device, no collective), and the posterior is still the least-squares one."""
+    per device, no collective, the devices at once), and the posterior is still the
+    least-squares one."""
     import os
     import subprocess
     import sys
@@ -383,6 +393,7 @@ def test_chains_spread_over_cpu_devices():
     assert p.returncode == 0, p.stderr[-2000:]
     out = json.loads(p.stdout.strip().splitlines()[-1])
     assert out["devices"] == 2
+    assert out["together"] == [0, 1]  # each call on its device, both at once
     np.testing.assert_array_less(out["z"], 0.3)
     np.testing.assert_allclose(out["sd"], 1.0, atol=0.2)
     assert out["r_hat"] < 1.02

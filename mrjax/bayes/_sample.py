@@ -441,7 +441,8 @@ def sample(
     (each unit's chains use `fold_in(key, unit)`: same key, same draws); `progress` a tqdm
     bar (None: only on a terminal).
 
-    **Returns:** a :class:`mrjax.bayes.Posterior` (`timings["mode"]`, `["sample"]` [s]).
+    **Returns:** a :class:`mrjax.bayes.Posterior` (`timings["mode"]`, `["sample"]` [s]; ChEES
+    also `["warmup"]`, `["draws"]` and `["continuations"]`, compilation included).
 
     Raises :class:`mrjax.InputError` for bad settings, an unknown noise model or prior, or
     shapes that do not match.
@@ -459,7 +460,7 @@ def sample(
     run = _Run(likelihood, su, groups, _shared(su, groups), noise, seed, key, show)
     post = run.lockstep(sampler) if sampler.lockstep else run.nuts(sampler)
     wall = time.perf_counter() - t0 + t_mode
-    return dataclasses.replace(post, timings={"sample": wall, "mode": t_mode})
+    return dataclasses.replace(post, timings={"sample": wall, "mode": t_mode, **run.clock})
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -476,6 +477,14 @@ class _Run:
     seed: int | None
     key: Any
     show: bool
+    #: Seconds spent per phase (ChEES: `"warmup"`, `"draws"`, `"continuations"`), added to.
+    clock: dict = dataclasses.field(default_factory=dict)
+
+    def tally(self, phase: str, t0: float) -> float:
+        """Add the seconds since `t0` to `clock[phase]`; returns now."""
+        now = time.perf_counter()
+        self.clock[phase] = self.clock.get(phase, 0.0) + now - t0
+        return now
 
     def post(self, sampler: Sampler, out) -> Posterior:
         return _posterior(self.lk, self.su, self.sh, sampler, self.noise, out, self.seed, {})
@@ -524,6 +533,7 @@ class _Run:
         parts = list(self.split(rows))
         keys = [_unit_keys(self.key, rows[pos], sampler.chains, round_) for _, pos, _ in parts]
         fresh = states is None
+        t0 = time.perf_counter()
         bar = _bar(self.show, (sampler.warmup * fresh + sampler.draws * sampler.thin)
                    * rows.size * sampler.chains)
         try:
@@ -539,6 +549,7 @@ class _Run:
                 for i, _, local in parts:
                     mine = [(x, o) for (g, x), o in zip(cuts, outs) if g == i]
                     states[i], warm[i] = _join(local.size, *zip(*mine))
+                t0 = self.tally("warmup" if round_ == 0 else "continuations", t0)
             calls, costs, cuts = [], [], []
             for (i, _, local), k in zip(parts, keys):
                 st = states[i] if fresh else _take(states[i], local)
@@ -547,6 +558,7 @@ class _Run:
                                          most, fresh, self.show)
                 calls, costs, cuts = calls + c, costs + co, cuts + [(i, x) for x in cut]
             outs = spread(calls, costs)
+            self.tally("draws" if round_ == 0 else "continuations", t0)
         finally:
             BAR[0] = None
             if bar is not None:
