@@ -348,6 +348,12 @@ def _join(n: int, cuts: list[np.ndarray], outs: list):
     return jax.tree.map(put, *outs)
 
 
+def _group_out(cuts: list, outs: list, group: int, n: int):
+    """The `n` units of `group` joined (:func:`_join`) from the outputs `outs` of the pages
+    `cuts` `[(group, unit positions in the group), ...]` of several groups."""
+    return _join(n, *zip(*[(x, o) for (g, x), o in zip(cuts, outs) if g == group]))
+
+
 def _warm_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
                 first: int | None, show: bool):
     """The calls of the ChEES warmup of a group's units `local` in pages: `(calls, the
@@ -547,8 +553,7 @@ class _Run:
                 outs = spread(calls, [x.size for _, x in cuts])
                 states = {}
                 for i, _, local in parts:
-                    mine = [(x, o) for (g, x), o in zip(cuts, outs) if g == i]
-                    states[i], warm[i] = _join(local.size, *zip(*mine))
+                    states[i], warm[i] = _group_out(cuts, outs, i, local.size)
                 t0 = self.tally("warmup" if round_ == 0 else "continuations", t0)
             calls, costs, cuts = [], [], []
             for (i, _, local), k in zip(parts, keys):
@@ -565,8 +570,7 @@ class _Run:
                 bar.close()
         joined, extra = [], {}
         for i, pos, local in parts:
-            *draws, after = _join(local.size, *zip(*[(x, o) for (g, x), o in zip(cuts, outs)
-                                                     if g == i]))
+            *draws, after = _group_out(cuts, outs, i, local.size)
             joined.append(tuple(draws))
             extra[i] = (local, after, page.get(i), warm.get(i))
         return _join(rows.size, [pos for _, pos, _ in parts], joined), extra
