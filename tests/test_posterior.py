@@ -119,7 +119,7 @@ def test_pages_of_similar_trajectory_length_spread_over_devices():
     """The draws' pages hold units of similar adapted trajectory length (a vmapped page
     advances at its longest), of the one size that leaves the busiest device the least
     predicted work; calls go to devices longest first, each to the least loaded."""
-    from mrjax.bayes._pages import assign, page_cost, sorted_pages
+    from mrjax.bayes._pages import assign, page_cost, shared_pages, sorted_pages
 
     where, work = assign([5.0, 4.0, 3.0, 3.0, 3.0], 2)
     assert where.tolist() == [0, 1, 1, 0, 1] and work == 10.0
@@ -129,20 +129,36 @@ def test_pages_of_similar_trajectory_length_spread_over_devices():
     # pages of 2 sorted units (6 x 14 + 30 x 14) cost less than one of 4 (30 x 22) or four
     # of 1 ((5 + 6 + 29 + 30) x 10), with the fixed cost of a step of 6 chains
     assert page_cost(n, s) == 30.0 * 14.0
-    assert [sorted(p.tolist()) for p in sorted_pages(n, s, 4, 1)] == [[0, 2], [1, 3]]
+    cut, work = sorted_pages(n, s, 4, 1)
+    assert [sorted(p.tolist()) for p in cut] == [[0, 2], [1, 3]] and work == 6 * 10 + 30 * 10
     # mapped units (not vmapped) never wait: one page of all of them
     m = dataclasses.replace(s, vectorize="chains")
-    assert [sorted(p.tolist()) for p in sorted_pages(n, m, 4, 1)] == [[0, 1, 2, 3]]
+    assert [sorted(p.tolist()) for p in sorted_pages(n, m, 4, 1)[0]] == [[0, 1, 2, 3]]
+    # one long unit left on 2 devices: its 8 chains in 2 shares, one a device ((6 + 4) x 30
+    # each against (6 + 8) x 30 on one); many similar units: whole
+    e = Sampler(chains=8, vectorize="all", kernel=ChEES())
+    shares, cut = shared_pages(np.array([30.0]), e, 1, 2)
+    assert shares == 2 and [p.tolist() for p in cut] == [[0], [1]]
+    assert shared_pages(np.full(6, 10.0), e, 3, 2)[0] == 1
+    assert shared_pages(np.array([30.0]), e, 1, 1)[0] == 1
 
 
-def test_chees_draws_do_not_depend_on_the_pages():
+def test_chees_draws_do_not_depend_on_the_pages(monkeypatch):
     """A unit's ChEES draws are its own whatever page it runs in: the same (to rounding) with
-    the 5 units in one page, in pages of 2 (the last padded) and one by one."""
+    the 5 units in one page, in pages of 2 (the last padded), and with each unit's chains in
+    2 shares drawn as units of their own (as on 2 devices)."""
+    import mrjax.bayes._sample as sample_module
+    from mrjax.bayes._pages import sorted_pages
+
     data, _ = line_data(U=5)
     est = ols(data)[0]
-    runs = [box_sample(Line(), est, data, sampler=Sampler(
-        draws=30, chains=2, warmup=30, continuations=0, vectorize="all",
-        kernel=ChEES(page=p))) for p in (5, 2, 1)]
+    run = lambda p: box_sample(Line(), est, data, sampler=Sampler(
+        draws=30, chains=4, warmup=30, continuations=0, vectorize="all",
+        kernel=ChEES(page=p)))
+    runs = [run(5), run(2)]
+    halves = lambda n, s, most, d: (2, sorted_pages(np.repeat(n, 2), s, 2 * most, d, 2)[0])
+    monkeypatch.setattr(sample_module, "shared_pages", halves)
+    runs.append(run(5))
     assert {"warmup", "draws", "sample", "mode"} <= set(runs[0].timings)
     for other in runs[1:]:
         np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-7, atol=1e-9)

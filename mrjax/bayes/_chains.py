@@ -101,7 +101,8 @@ def run_chains(target, prior, sampler, progress, units, z0, L, keys):
 def to_si(target, prior, units, z, keys):
     """The draws `z` (U, C, N, D) of the sampler's coordinates in SI units, in the program:
     `(theta (U, C, N, K), sigma (U, C, N, R), rho (U, C, N) or None)`; the unknowns integrated
-    out drawn from their conditional at each draw (keys from `keys[:, 0]`)."""
+    out drawn from their conditional at each draw (each chain's from its key in `keys` (U, C):
+    the same draws however a unit's chains are shared out)."""
     free = np.asarray(target.free, int)
     Kf, R = len(free), sum(target.rows)
     th = to_box(z[..., :Kf], *(a[:, None, None, :] for a in (units.lo, units.hi, units.soft,
@@ -110,15 +111,15 @@ def to_si(target, prior, units, z, keys):
                              z.shape[:3] + units.theta.shape[-1:])
     theta = theta.at[..., free].set(th)
     if target.linear:  # the unknowns integrated out: drawn from their conditional at each draw
-        def draws(unit, zu, k):
+        def draws(unit, zu, kc):
             flat = zu.reshape(-1, zu.shape[-1])
-            ks = jax.random.split(k, flat.shape[0])
-            out = jax.lax.map(lambda a: linear_draw(target, prior, unit, *a), (flat, ks),
+            ks = jax.vmap(lambda k: jax.random.split(jax.random.fold_in(k, 1), zu.shape[1]))(kc)
+            out = jax.lax.map(lambda a: linear_draw(target, prior, unit, *a),
+                              (flat, ks.reshape(flat.shape[0], *ks.shape[2:])),
                               batch_size=LINEAR_BATCH)
             return out.reshape(zu.shape[:-1] + out.shape[-1:])
 
-        lin_keys = jax.vmap(lambda k: jax.random.fold_in(k[0], 1))(keys)
-        beta = jax.lax.map(lambda a: draws(*a), (units, z, lin_keys))
+        beta = jax.lax.map(lambda a: draws(*a), (units, z, keys))
         theta = theta.at[..., np.asarray(target.linear, int)].set(beta)
     log_sigma = z[..., Kf:Kf + R]
     rho = None
@@ -284,12 +285,13 @@ def _lockstep_warmup(target, prior, sampler: Sampler, progress: bool, unit, z0, 
                          step_size=step, n_leapfrog=n_leap), jnp.sum(n_steps)
 
 
-def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, key):
+def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, keys):
     """`sampler.draws` draws (every `thin`-th step kept) of one unit's ChEES chains from their
-    state `st`: `(trace (C, N) arrays, the state after)`."""
+    state `st` (C chains: all the unit's or a share of them), each chain's from its key in
+    `keys` (C,): `(trace (C, N) arrays, the state after)`."""
     from blackjax.mcmc.dynamic_hmc import DynamicHMCState, build_kernel
 
-    C = sampler.chains
+    C = st.position.shape[0]
     logdensity = _unit_density(target, prior, unit, st.z0, st.L)
     kernel = build_kernel(next_random_arg_fn=lambda i: i + 1, integration_steps_fn=_steps_fn)
     eye = jnp.ones(st.z0.shape[-1], st.z0.dtype)
@@ -308,9 +310,9 @@ def _lockstep_draws(target, prior, sampler: Sampler, progress: bool, unit, st, k
         return s, out
 
     s0 = DynamicHMCState(st.position, st.logdensity, st.grad, st.arg)
-    keys = jax.random.split(key, sampler.draws * sampler.thin * C).reshape(
-        sampler.draws, sampler.thin, C)
-    last, trace = jax.lax.scan(one, s0, keys)
+    steps = jax.vmap(lambda k: jax.random.split(k, sampler.draws * sampler.thin))(keys)
+    last, trace = jax.lax.scan(one, s0, jnp.moveaxis(steps, 0, -1).reshape(
+        sampler.draws, sampler.thin, C))
     after = eqx.tree_at(lambda t: (t.position, t.logdensity, t.grad, t.arg), st,
                         (last.position, last.logdensity, last.logdensity_grad,
                          last.random_generator_arg))
@@ -358,11 +360,14 @@ def warm_lockstep(target, prior, sampler, progress, units, z0, L, keys):
 @eqx.filter_jit
 def extend_lockstep(target, prior, sampler, progress, units, state, keys, fresh=False):
     """Draws of ChEES chains from where they stopped (`state`, a batched
-    :class:`LockstepState`): the first draws after the warmup (`fresh`) or more of them.
-    Returns `(theta, sigma, rho, (lp, diverging, steps, accept), LockstepState)`."""
+    :class:`LockstepState`): the first draws after the warmup (`fresh`) or more of them. A
+    unit's chains draw from their own keys (`keys` (U, C)), so a unit's chains may be shared
+    out over calls (units of fewer chains) with the same draws. Returns `(theta, sigma, rho,
+    (lp, diverging, steps, accept), LockstepState)`."""
     def unit_fn(unit, st, k):
-        key = jax.random.split(k[0])[1] if fresh else jax.random.fold_in(k[0], 2)
-        return _lockstep_draws(target, prior, sampler, progress, unit, st, key)
+        ks = jax.vmap(lambda c: jax.random.split(c)[1] if fresh
+                      else jax.random.fold_in(c, 2))(k)
+        return _lockstep_draws(target, prior, sampler, progress, unit, st, ks)
 
     trace, after = _over_units(unit_fn, sampler)(units, state, keys)
     return (*_finish(target, prior, units, trace, keys), after)

@@ -57,33 +57,61 @@ def assign(costs: Sequence[float], n_devices: int) -> tuple[np.ndarray, float]:
     return where, float(load.max(initial=0.0))
 
 
-def page_cost(n_leapfrog: np.ndarray, sampler: Sampler) -> float:
-    """Predicted cost of one step of a page whose units take `n_leapfrog` (page,) mean
-    leapfrog steps per draw, in chains' gradients: its units vmapped (`"all"`) wait for the
-    longest; mapped ones each take their own."""
-    C = sampler.chains
+def page_cost(n_leapfrog: np.ndarray, sampler: Sampler, chains: int | None = None) -> float:
+    """Predicted cost of one step of a page whose units of `chains` chains (default
+    `sampler.chains`) take `n_leapfrog` (page,) mean leapfrog steps per draw, in chains'
+    gradients: its units vmapped (`"all"`) wait for the longest; mapped ones each take their
+    own."""
+    C = sampler.chains if chains is None else int(chains)
     n = np.asarray(n_leapfrog, float)
     if vectorized(sampler) == "all":
         return float(n.max()) * (PAGE_OVERHEAD + n.size * C)
     return float(np.sum(n)) * (PAGE_OVERHEAD + C)
 
 
-def sorted_pages(n_leapfrog: np.ndarray, sampler: Sampler, most: int,
-                 n_devices: int) -> list[np.ndarray]:
+def sorted_pages(n_leapfrog: np.ndarray, sampler: Sampler, most: int, n_devices: int,
+                 chains: int | None = None) -> tuple[list[np.ndarray], float]:
     """The units of adapted trajectory lengths `n_leapfrog` (U,) in pages of one size (one
     compiled shape) of units of similar length: the size among `most`, `most / 2`, ... that
-    leaves the busiest device the least predicted work (:func:`page_cost`, :func:`assign`)."""
-    order = np.argsort(np.asarray(n_leapfrog, float), kind="stable")
+    leaves the busiest device the least predicted work (:func:`page_cost` of units of
+    `chains` chains, :func:`assign`). Returns `(pages, the busiest device's work per
+    step)`."""
+    n_leapfrog = np.asarray(n_leapfrog, float)
+    order = np.argsort(n_leapfrog, kind="stable")
     best, best_work = None, np.inf
     size = max(int(most), 1)
     while True:
         cut = [order[idx] for idx in pages(order.size, size)]
-        _, work = assign([page_cost(n_leapfrog[p], sampler) for p in cut], n_devices)
+        _, work = assign([page_cost(n_leapfrog[p], sampler, chains) for p in cut], n_devices)
         if work < best_work * (1.0 - 1e-9):  # a smaller size only where it saves work
             best, best_work = cut, work
         if size == 1:
-            return best
+            return best, best_work
         size = max(size // 2, 1)
+
+
+#: A unit's chains are shared out over the devices only where that cuts the busiest device's
+#: predicted work by more than this fraction (each share's shape is one more compiled
+#: program).
+SHARE_GAIN = 0.1
+
+
+def shared_pages(n_leapfrog: np.ndarray, sampler: Sampler, most: int,
+                 n_devices: int) -> tuple[int, list[np.ndarray]]:
+    """Pages of draws (:func:`sorted_pages`) of units of trajectory lengths `n_leapfrog` (U,),
+    each unit whole or its chains in `shares` equal shares, units of their own (unit `j //
+    shares`, share `j % shares`; lockstep draws have no interaction between a unit's
+    chains): in as many shares as devices (the most that divide the chains) where that
+    leaves the busiest device `SHARE_GAIN` less work, e.g. a few long units left on more
+    devices than units. Returns `(shares, pages of those units)`."""
+    C = sampler.chains
+    S = max(d for d in range(1, min(max(int(n_devices), 1), C) + 1) if C % d == 0)
+    whole, work = sorted_pages(n_leapfrog, sampler, most, n_devices)
+    if S == 1:
+        return 1, whole
+    split, work_s = sorted_pages(np.repeat(np.asarray(n_leapfrog, float), S), sampler,
+                                 most * S, n_devices, C // S)
+    return (S, split) if work_s < work * (1.0 - SHARE_GAIN) else (1, whole)
 
 
 def spread(calls: list[tuple[Callable, tuple]], costs: Sequence[float] | None = None) -> list:

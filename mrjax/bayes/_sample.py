@@ -14,12 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._chains import extend_lockstep, run_chains, warm_lockstep
+from ._chains import LockstepState, extend_lockstep, run_chains, warm_lockstep
 from ._noise import check_noise, lag_grams
-from ._pages import page_cost, page_size, pages, sorted_pages, spread
+from ._pages import page_cost, page_size, pages, shared_pages, spread
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._sampler import BAR, Sampler, chain_devices
+from ._sampler import BAR, Sampler, chain_devices, warmup_vectorized
 from ._start import (
     GRADIENT_TOL,
     Target,
@@ -198,6 +198,12 @@ def _take(tree, rows):
     return jax.tree.map(lambda a: a[rows], tree)
 
 
+#: A gradient through the exact tangent costs this many through the implicit one (the
+#: modified Bouc-Wen model's SDIRK scheme on the same samples: 6.8; `benchmarks/posterior.md`),
+#: for the spread of a campaign's calls over the devices.
+EXACT_COST = 6.0
+
+
 #: A group of units of its own costs as many samples of every unit's gradient as this share
 #: of the campaign's padded samples (its own compiled program; see :func:`length_groups`).
 GROUP_COST = 0.05
@@ -356,11 +362,14 @@ def _group_out(cuts: list, outs: list, group: int, n: int):
 
 def _warm_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
                 first: int | None, show: bool):
-    """The calls of the ChEES warmup of a group's units `local` in pages: `(calls, the
-    pages' unit positions in local, the page size)`."""
+    """The calls of the ChEES warmup of a group's units `local` in pages (one unit a call
+    where the warmup maps its units: :func:`mrjax.bayes._sampler.warmup_vectorized`): `(calls,
+    the pages' unit positions in local, the page size of the draws)`."""
     page = page_size(sampler, local.size, first)
-    run = lambda *a: warm_lockstep(prep.target, su.prior_data, sampler, show, *a)
-    cuts = pages(local.size, page)
+    mode = warmup_vectorized(sampler)
+    warm = dataclasses.replace(sampler, vectorize=mode)
+    run = lambda *a: warm_lockstep(prep.target, su.prior_data, warm, show, *a)
+    cuts = pages(local.size, page if mode == "all" else 1)
     calls = [(run, (_take(prep.units, local[c]), jnp.asarray(prep.z0[local[c]]),
                     jnp.asarray(prep.L[local[c]]), keys[c])) for c in cuts]
     return calls, cuts, page
@@ -369,16 +378,56 @@ def _warm_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray
 def _draw_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
                 state, most: int, fresh: bool, show: bool):
     """The calls of a group's units `local` drawing from their chains' `state` (host arrays,
-    in the order of `local`), in pages of units of similar trajectory length
-    (:func:`mrjax.bayes._pages.sorted_pages`, at most `most` units): `(calls, their
-    predicted costs, the pages' unit positions in local)`."""
+    in the order of `local`), in pages of units of similar trajectory length, each unit's
+    chains whole or in shares (:func:`mrjax.bayes._pages.shared_pages`, at most `most` units
+    of whole chains a page): `(calls, their predicted costs, the pages' unit positions,
+    the shares)`; the units of the pages are shares where `shares > 1` (unit `j // shares`,
+    share `j % shares`), joined again by :func:`_whole`."""
     n = np.asarray(state.n_leapfrog, float)
-    cuts = sorted_pages(n, sampler, most, jax.local_device_count())
+    S, cuts = shared_pages(n, sampler, most, jax.local_device_count())
+    state, keys = _in_shares(state, S), _in_shares(keys, S)
     run = lambda *a: extend_lockstep(prep.target, su.prior_data, sampler, show, *a,
                                      fresh=fresh)
-    calls = [(run, (_take(prep.units, local[c]), _take(state, c), keys[c])) for c in cuts]
+    calls = [(run, (_take(prep.units, local[c // S]), _take(state, c), keys[c]))
+             for c in cuts]
     steps = sampler.draws * sampler.thin
-    return calls, [page_cost(n[c], sampler) * steps for c in cuts], cuts
+    n = np.repeat(n, S)
+    return calls, [page_cost(n[c], sampler, sampler.chains // S) * steps for c in cuts], \
+        cuts, S
+
+
+def _in_shares(tree, S: int):
+    """A batched :class:`LockstepState` or keys (U, C) with each unit's C chains in `S`
+    shares of C / S, units of their own (unit-major: `u * S + s`); a unit's coordinates,
+    step size and trajectory length repeated for each share."""
+    if S == 1:
+        return tree
+
+    def cut(a):  # host arrays or keys
+        return a.reshape(a.shape[0] * S, a.shape[1] // S, *a.shape[2:])
+
+    if isinstance(tree, LockstepState):
+        return LockstepState(**{f: cut(getattr(tree, f)) if f in _PER_CHAIN else
+                                np.repeat(np.asarray(getattr(tree, f)), S, axis=0)
+                                for f in _FIELDS})
+    return cut(tree)
+
+
+#: The fields of :class:`LockstepState`, and those with a chain axis.
+_FIELDS = tuple(f.name for f in dataclasses.fields(LockstepState))
+_PER_CHAIN = ("position", "logdensity", "grad", "arg")
+
+
+def _whole(tree, S: int):
+    """The draws `(theta, sigma, rho, (lp, ...), LockstepState)` of units in `S` shares
+    (:func:`_in_shares`) as the units' whole chains."""
+    if S == 1:
+        return tree
+    *draws, after = tree
+    join = lambda a: np.asarray(a).reshape(-1, S * a.shape[1], *a.shape[2:])
+    after = LockstepState(**{f: join(getattr(after, f)) if f in _PER_CHAIN else
+                             np.asarray(getattr(after, f))[::S] for f in _FIELDS})
+    return (*jax.tree.map(join, tuple(draws)), after)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -492,6 +541,13 @@ class _Run:
         self.clock[phase] = self.clock.get(phase, 0.0) + now - t0
         return now
 
+    def weight(self, group: int) -> float:
+        """Predicted cost of one gradient of a unit of `group`, relative to the others': its
+        samples, times `EXACT_COST` where it runs the exact tangent."""
+        prep = self.groups[group].prep
+        exact = self.lk.exact is not None and prep.target.residual is self.lk.exact
+        return float(_scored_length(prep.units.masks).max()) * (EXACT_COST if exact else 1.0)
+
     def post(self, sampler: Sampler, out) -> Posterior:
         return _posterior(self.lk, self.su, self.sh, sampler, self.noise, out, self.seed, {})
 
@@ -550,18 +606,19 @@ class _Run:
                     c, cut, page[i] = _warm_calls(self.groups[i].prep, self.su, sampler,
                                                   local, k, first.get(i), self.show)
                     calls, cuts = calls + c, cuts + [(i, x) for x in cut]
-                outs = spread(calls, [x.size for _, x in cuts])
+                outs = spread(calls, [x.size * self.weight(i) for i, x in cuts])
                 states = {}
                 for i, _, local in parts:
                     states[i], warm[i] = _group_out(cuts, outs, i, local.size)
                 t0 = self.tally("warmup" if round_ == 0 else "continuations", t0)
-            calls, costs, cuts = [], [], []
+            calls, costs, cuts, shares = [], [], [], {}
             for (i, _, local), k in zip(parts, keys):
                 st = states[i] if fresh else _take(states[i], local)
                 most = page.get(i) or page_size(sampler, local.size, first.get(i))
-                c, co, cut = _draw_calls(self.groups[i].prep, self.su, sampler, local, k, st,
-                                         most, fresh, self.show)
-                calls, costs, cuts = calls + c, costs + co, cuts + [(i, x) for x in cut]
+                c, co, cut, shares[i] = _draw_calls(self.groups[i].prep, self.su, sampler,
+                                                    local, k, st, most, fresh, self.show)
+                calls, cuts = calls + c, cuts + [(i, x) for x in cut]
+                costs += [x * self.weight(i) for x in co]
             outs = spread(calls, costs)
             self.tally("draws" if round_ == 0 else "continuations", t0)
         finally:
@@ -570,7 +627,8 @@ class _Run:
                 bar.close()
         joined, extra = [], {}
         for i, pos, local in parts:
-            *draws, after = _group_out(cuts, outs, i, local.size)
+            *draws, after = _whole(_group_out(cuts, outs, i, local.size * shares[i]),
+                                   shares[i])
             joined.append(tuple(draws))
             extra[i] = (local, after, page.get(i), warm.get(i))
         return _join(rows.size, [pos for _, pos, _ in parts], joined), extra

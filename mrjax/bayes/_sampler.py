@@ -204,7 +204,8 @@ class Sampler(eqx.Module):
         forward-mode gradient, else `"chains"` (a static model: its units' trajectory
         lengths differ, and a unit of a batch would wait for the longest; a unit's chains
         take the same steps, and a batch of them runs the record's samples once for all,
-        measured in `benchmarks/posterior.md`).
+        measured in `benchmarks/posterior.md`); its warmup then `"chains"` on a CPU, one unit
+        a call (:func:`warmup_vectorized`).
     - `continuations`: at most this many further rounds for the units whose chains missed
         R-hat <= `RHAT_MAX`, bulk or tail ESS >= `ESS_MIN`, or diverged; what still misses is
         warned about (`Posterior.rounds` says how many rounds each unit took). NUTS: round r
@@ -322,6 +323,17 @@ def vectorized(sampler: Sampler) -> str:
             return "all" if sampler.gradient == "forward" else "chains"
         return "chains" if sampler.gradient == "forward" else "none"
     return {True: "all", False: "none"}.get(v, v) if isinstance(v, bool) else str(v)
+
+
+def warmup_vectorized(sampler: Sampler) -> str:
+    """What ChEES's warmup vmaps (:func:`vectorized`), except by default (`vectorize` None) on
+    a CPU, where the units of a page are mapped, their chains vmapped (`"chains"`): a unit's
+    trajectory length is found during the warmup, so a vmapped page cannot be made of units
+    of similar length and would advance at its longest at every step (the draws vmap pages
+    of units of similar adapted length; `benchmarks/posterior.md`)."""
+    if sampler.vectorize is None and jax.default_backend() == "cpu" and sampler.lockstep:
+        return "chains"
+    return vectorized(sampler)
 
 
 def chain_devices(sampler: Sampler) -> int:
