@@ -147,7 +147,7 @@ def test_chees_draws_do_not_depend_on_the_pages(monkeypatch):
     """A unit's ChEES draws are its own whatever page it runs in: the same (to rounding) with
     the 5 units in one page, in pages of 2 (the last padded), and with each unit's chains in
     2 shares drawn as units of their own (as on 2 devices)."""
-    import mrjax.bayes._sample as sample_module
+    import mrjax.bayes._calls as calls_module
     from mrjax.bayes._pages import sorted_pages
 
     data, _ = line_data(U=5)
@@ -157,7 +157,7 @@ def test_chees_draws_do_not_depend_on_the_pages(monkeypatch):
         kernel=ChEES(page=p)))
     runs = [run(5), run(2)]
     halves = lambda n, s, most, d: (2, sorted_pages(np.repeat(n, 2), s, 2 * most, d, 2)[0])
-    monkeypatch.setattr(sample_module, "shared_pages", halves)
+    monkeypatch.setattr(calls_module, "shared_pages", halves)
     runs.append(run(5))
     assert {"warmup", "draws", "sample", "mode"} <= set(runs[0].timings)
     for other in runs[1:]:

@@ -169,12 +169,11 @@ def test_fit_known_answer(model, bench):
 
 def test_posterior_covers_truth(model):
     """The posterior through the engine on a shorter record (two noisy periods of 256 samples:
-    every leapfrog step integrates the structure, so the suite keeps it small), trees of at
-    most 63 steps; its 99 % intervals cover the truth."""
+    every leapfrog step integrates the structure, so the suite keeps it small), ChEES's
+    4 chains in lockstep (one batch); its 99 % intervals cover the truth."""
     _, rec, res = noisy_fit(model, 256)
-    post = mrjax.posterior(res, rec, sampler=mrjax.Sampler(draws=100, warmup=100, chains=2,
-                                                           max_doublings=6, continuations=0),
-                           key=0)
+    post = mrjax.posterior(res, rec, sampler=mrjax.Sampler(
+        draws=100, warmup=100, chains=4, continuations=0, kernel=mrjax.bayes.ChEES()), key=0)
     z = truth_z(model)
     for j, name in enumerate(res.names):
         lo, hi = post.interval(name, 0.99)[0]

@@ -14,12 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._chains import LockstepState, extend_lockstep, run_chains, warm_lockstep
+from ._calls import draw_calls, group_out, join, take, warm_calls, whole
+from ._chains import run_chains
 from ._noise import check_noise, lag_grams
-from ._pages import page_cost, page_size, pages, shared_pages, spread
+from ._pages import page_size, spread
 from ._priors import box_slope, check_priors, prior_arrays, to_box
 from ._result import Posterior
-from ._sampler import BAR, Sampler, chain_devices, warmup_vectorized
+from ._sampler import BAR, Sampler, chain_devices
 from ._start import (
     GRADIENT_TOL,
     Target,
@@ -193,11 +194,6 @@ class _Group:
     prep: _Prepared
 
 
-def _take(tree, rows):
-    """The units `rows` of a pytree of arrays with a leading unit axis."""
-    return jax.tree.map(lambda a: a[rows], tree)
-
-
 #: A gradient through the exact tangent costs this many through the implicit one (the
 #: modified Bouc-Wen model's SDIRK scheme on the same samples: 6.8; `benchmarks/posterior.md`),
 #: for the spread of a campaign's calls over the devices.
@@ -251,7 +247,7 @@ def _by_length(lk: Likelihood, groups: list[_Group]) -> list[_Group]:
         n = _scored_length(g.prep.units.masks)
         for sel in length_groups(n):
             T = int(n[sel].max())
-            u = _take(g.prep.units, sel)
+            u = take(g.prep.units, sel)
             u = u._replace(data=lk.trim(u.data, T), masks=tuple(m[..., :T] for m in u.masks),
                            regressors=tuple(r[..., :T, :] for r in u.regressors))
             p = g.prep
@@ -290,14 +286,14 @@ def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_
     groups = []
     if not bad.all():
         groups.append(_Group(rows[~bad], _Prepared(
-            prep.target, _take(prep.units, ~bad), prep.z0[~bad], prep.L[~bad], prep.lo[~bad],
+            prep.target, take(prep.units, ~bad), prep.z0[~bad], prep.L[~bad], prep.lo[~bad],
             prep.hi[~bad], None)))
     if bad.any():  # those units again from the start, exactly: the approximate gradient's
         # "mode" may be far from the posterior's
-        lk_b = dataclasses.replace(lk, data=_take(lk.data, bad))
+        lk_b = dataclasses.replace(lk, data=take(lk.data, bad))
         su_b = dataclasses.replace(su, theta0=su.theta0[bad], lo=su.lo[bad], hi=su.hi[bad])
         groups.append(_Group(rows[bad], _at_mode(
-            lk_b, su_b, _take(st, bad), every, dataclasses.replace(target, residual=lk.exact),
+            lk_b, su_b, take(st, bad), every, dataclasses.replace(target, residual=lk.exact),
             z0[bad], L[bad])))
     return _by_length(lk, [_Group(g.rows, dataclasses.replace(
         g.prep, gradient_error=float(np.max(err)))) for g in groups])
@@ -340,94 +336,6 @@ def _draw(prep: _Prepared, su: _Setup, sampler: Sampler, rows: np.ndarray, keys,
         if bar is not None:
             bar.close()
     return jax.tree.map(lambda *a: np.concatenate(a, axis=1), *outs)
-
-
-def _join(n: int, cuts: list[np.ndarray], outs: list):
-    """Outputs `outs` of the units `cuts` (index arrays; a padded page repeats an index) as
-    one pytree of host arrays whose leading axis holds the `n` units."""
-    def put(*leaves):
-        full = np.empty((n,) + np.shape(leaves[0])[1:], np.asarray(leaves[0]).dtype)
-        for cut, a in zip(cuts, leaves):
-            full[cut] = a
-        return full
-
-    return jax.tree.map(put, *outs)
-
-
-def _group_out(cuts: list, outs: list, group: int, n: int):
-    """The `n` units of `group` joined (:func:`_join`) from the outputs `outs` of the pages
-    `cuts` `[(group, unit positions in the group), ...]` of several groups."""
-    return _join(n, *zip(*[(x, o) for (g, x), o in zip(cuts, outs) if g == group]))
-
-
-def _warm_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
-                first: int | None, show: bool):
-    """The calls of the ChEES warmup of a group's units `local` in pages (one unit a call
-    where the warmup maps its units: :func:`mrjax.bayes._sampler.warmup_vectorized`): `(calls,
-    the pages' unit positions in local, the page size of the draws)`."""
-    page = page_size(sampler, local.size, first)
-    mode = warmup_vectorized(sampler)
-    warm = dataclasses.replace(sampler, vectorize=mode)
-    run = lambda *a: warm_lockstep(prep.target, su.prior_data, warm, show, *a)
-    cuts = pages(local.size, page if mode == "all" else 1)
-    calls = [(run, (_take(prep.units, local[c]), jnp.asarray(prep.z0[local[c]]),
-                    jnp.asarray(prep.L[local[c]]), keys[c])) for c in cuts]
-    return calls, cuts, page
-
-
-def _draw_calls(prep: _Prepared, su: _Setup, sampler: Sampler, local: np.ndarray, keys,
-                state, most: int, fresh: bool, show: bool):
-    """The calls of a group's units `local` drawing from their chains' `state` (host arrays,
-    in the order of `local`), in pages of units of similar trajectory length, each unit's
-    chains whole or in shares (:func:`mrjax.bayes._pages.shared_pages`, at most `most` units
-    of whole chains a page): `(calls, their predicted costs, the pages' unit positions,
-    the shares)`; the units of the pages are shares where `shares > 1` (unit `j // shares`,
-    share `j % shares`), joined again by :func:`_whole`."""
-    n = np.asarray(state.n_leapfrog, float)
-    S, cuts = shared_pages(n, sampler, most, jax.local_device_count())
-    state, keys = _in_shares(state, S), _in_shares(keys, S)
-    run = lambda *a: extend_lockstep(prep.target, su.prior_data, sampler, show, *a,
-                                     fresh=fresh)
-    calls = [(run, (_take(prep.units, local[c // S]), _take(state, c), keys[c]))
-             for c in cuts]
-    steps = sampler.draws * sampler.thin
-    n = np.repeat(n, S)
-    return calls, [page_cost(n[c], sampler, sampler.chains // S) * steps for c in cuts], \
-        cuts, S
-
-
-def _in_shares(tree, S: int):
-    """A batched :class:`LockstepState` or keys (U, C) with each unit's C chains in `S`
-    shares of C / S, units of their own (unit-major: `u * S + s`); a unit's coordinates,
-    step size and trajectory length repeated for each share."""
-    if S == 1:
-        return tree
-
-    def cut(a):  # host arrays or keys
-        return a.reshape(a.shape[0] * S, a.shape[1] // S, *a.shape[2:])
-
-    if isinstance(tree, LockstepState):
-        return LockstepState(**{f: cut(getattr(tree, f)) if f in _PER_CHAIN else
-                                np.repeat(np.asarray(getattr(tree, f)), S, axis=0)
-                                for f in _FIELDS})
-    return cut(tree)
-
-
-#: The fields of :class:`LockstepState`, and those with a chain axis.
-_FIELDS = tuple(f.name for f in dataclasses.fields(LockstepState))
-_PER_CHAIN = ("position", "logdensity", "grad", "arg")
-
-
-def _whole(tree, S: int):
-    """The draws `(theta, sigma, rho, (lp, ...), LockstepState)` of units in `S` shares
-    (:func:`_in_shares`) as the units' whole chains."""
-    if S == 1:
-        return tree
-    *draws, after = tree
-    join = lambda a: np.asarray(a).reshape(-1, S * a.shape[1], *a.shape[2:])
-    after = LockstepState(**{f: join(getattr(after, f)) if f in _PER_CHAIN else
-                             np.asarray(getattr(after, f))[::S] for f in _FIELDS})
-    return (*jax.tree.map(join, tuple(draws)), after)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -565,7 +473,7 @@ class _Run:
         parts = list(self.split(rows))
         outs = [fn(i, local, _unit_keys(self.key, rows[pos], sampler.chains, round_))
                 for i, pos, local in parts]
-        return _join(rows.size, [pos for _, pos, _ in parts], outs)
+        return join(rows.size, [pos for _, pos, _ in parts], outs)
 
     def nuts(self, sampler: Sampler) -> Posterior:
         """NUTS: a continued unit runs again from the mode, 2^r x the warmup and draws."""
@@ -603,19 +511,19 @@ class _Run:
             if fresh:
                 calls, cuts = [], []
                 for (i, _, local), k in zip(parts, keys):
-                    c, cut, page[i] = _warm_calls(self.groups[i].prep, self.su, sampler,
+                    c, cut, page[i] = warm_calls(self.groups[i].prep, self.su, sampler,
                                                   local, k, first.get(i), self.show)
                     calls, cuts = calls + c, cuts + [(i, x) for x in cut]
                 outs = spread(calls, [x.size * self.weight(i) for i, x in cuts])
                 states = {}
                 for i, _, local in parts:
-                    states[i], warm[i] = _group_out(cuts, outs, i, local.size)
+                    states[i], warm[i] = group_out(cuts, outs, i, local.size)
                 t0 = self.tally("warmup" if round_ == 0 else "continuations", t0)
             calls, costs, cuts, shares = [], [], [], {}
             for (i, _, local), k in zip(parts, keys):
-                st = states[i] if fresh else _take(states[i], local)
+                st = states[i] if fresh else take(states[i], local)
                 most = page.get(i) or page_size(sampler, local.size, first.get(i))
-                c, co, cut, shares[i] = _draw_calls(self.groups[i].prep, self.su, sampler,
+                c, co, cut, shares[i] = draw_calls(self.groups[i].prep, self.su, sampler,
                                                     local, k, st, most, fresh, self.show)
                 calls, cuts = calls + c, cuts + [(i, x) for x in cut]
                 costs += [x * self.weight(i) for x in co]
@@ -627,18 +535,18 @@ class _Run:
                 bar.close()
         joined, extra = [], {}
         for i, pos, local in parts:
-            *draws, after = _whole(_group_out(cuts, outs, i, local.size * shares[i]),
+            *draws, after = whole(group_out(cuts, outs, i, local.size * shares[i]),
                                    shares[i])
             joined.append(tuple(draws))
             extra[i] = (local, after, page.get(i), warm.get(i))
-        return _join(rows.size, [pos for _, pos, _ in parts], joined), extra
+        return join(rows.size, [pos for _, pos, _ in parts], joined), extra
 
     def fresh(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict):
         """ChEES warmup and draws of the units `rows` from the mode: `(Posterior of those
         units, {group: (positions in the group, its chains' last state, the page size)})`."""
         draws, extra = self.paged(sampler, rows, round_, first)
         C = sampler.chains
-        step = _join(rows.size, [pos for _, pos, _ in self.split(rows)],
+        step = join(rows.size, [pos for _, pos, _ in self.split(rows)],
                      [(e[1].step_size, e[3]) for e in extra.values()])
         out = (*draws, np.repeat(step[0][:, None], C, 1), np.repeat(step[1][:, None], C, 1))
         return self.post(sampler, out), extra
