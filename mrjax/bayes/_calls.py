@@ -41,10 +41,11 @@ def group_out(cuts: list, outs: list, group: int, n: int):
     return join(n, *zip(*[(x, o) for (g, x), o in zip(cuts, outs) if g == group]))
 
 
-def warm_calls(prep, su, sampler: Sampler, local: np.ndarray, keys,
-                first: int | None, show: bool):
+def warm_calls(prep, su, sampler: Sampler, local: np.ndarray, keys, first: int | None,
+               weight: float, show: bool):
     """The calls of the ChEES warmup of a group's units `local` in pages (one unit a call
     where the warmup maps its units: :func:`mrjax.bayes._sampler.warmup_vectorized`): `(calls,
+    their predicted costs (units x `weight`, a unit's gradient relative to other groups'),
     the pages' unit positions in local, the page size of the draws)`."""
     page = page_size(sampler, local.size, first)
     mode = warmup_vectorized(sampler)
@@ -53,17 +54,18 @@ def warm_calls(prep, su, sampler: Sampler, local: np.ndarray, keys,
     cuts = pages(local.size, page if mode == "all" else 1)
     calls = [(run, (take(prep.units, local[c]), jnp.asarray(prep.z0[local[c]]),
                     jnp.asarray(prep.L[local[c]]), keys[c])) for c in cuts]
-    return calls, cuts, page
+    return calls, [c.size * weight for c in cuts], cuts, page
 
 
-def draw_calls(prep, su, sampler: Sampler, local: np.ndarray, keys,
-                state, most: int, fresh: bool, show: bool):
+def draw_calls(prep, su, sampler: Sampler, local: np.ndarray, keys, state, most: int,
+               weight: float, fresh: bool, show: bool):
     """The calls of a group's units `local` drawing from their chains' `state` (host arrays,
     in the order of `local`), in pages of units of similar trajectory length, each unit's
     chains whole or in shares (:func:`mrjax.bayes._pages.shared_pages`, at most `most` units
-    of whole chains a page): `(calls, their predicted costs, the pages' unit positions,
-    the shares)`; the units of the pages are shares where `shares > 1` (unit `j // shares`,
-    share `j % shares`), joined again by :func:`whole`."""
+    of whole chains a page): `(calls, their predicted costs (x `weight`, as in
+    :func:`warm_calls`), the pages' unit positions, the shares)`; the units of the pages are
+    shares where `shares > 1` (unit `j // shares`, share `j % shares`), joined again by
+    :func:`whole`."""
     n = np.asarray(state.n_leapfrog, float)
     S, cuts = shared_pages(n, sampler, most, jax.local_device_count())
     state, keys = in_shares(state, S), in_shares(keys, S)
@@ -71,10 +73,10 @@ def draw_calls(prep, su, sampler: Sampler, local: np.ndarray, keys,
                                      fresh=fresh)
     calls = [(run, (take(prep.units, local[c // S]), take(state, c), keys[c]))
              for c in cuts]
-    steps = sampler.draws * sampler.thin
+    steps = sampler.draws * sampler.thin * weight
     n = np.repeat(n, S)
-    return calls, [page_cost(n[c], sampler, sampler.chains // S) * steps for c in cuts], \
-        cuts, S
+    costs = [page_cost(n[c], sampler, sampler.chains // S) * steps for c in cuts]
+    return calls, costs, cuts, S
 
 
 def in_shares(tree, S: int):
@@ -105,7 +107,7 @@ def whole(tree, S: int):
     if S == 1:
         return tree
     *draws, after = tree
-    join = lambda a: np.asarray(a).reshape(-1, S * a.shape[1], *a.shape[2:])
-    after = LockstepState(**{f: join(getattr(after, f)) if f in PER_CHAIN else
+    merge = lambda a: np.asarray(a).reshape(-1, S * a.shape[1], *a.shape[2:])
+    after = LockstepState(**{f: merge(getattr(after, f)) if f in PER_CHAIN else
                              np.asarray(getattr(after, f))[::S] for f in FIELDS})
-    return (*jax.tree.map(join, tuple(draws)), after)
+    return (*jax.tree.map(merge, tuple(draws)), after)

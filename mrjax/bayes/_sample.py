@@ -495,9 +495,9 @@ class _Run:
     def paged(self, sampler: Sampler, rows: np.ndarray, round_: int, first: dict,
               states: dict | None = None):
         """ChEES chains of the units `rows`, every group's pages spread over the devices
-        together (:func:`mrjax.bayes._pages.spread`): the warmup from the mode (`states` None), then draws in
-        pages of units of similar trajectory length; or (`states`, {group: its chains' last
-        state}) draws that extend them. Returns `(draws (in the order of rows), {group:
+        together (:func:`mrjax.bayes._pages.spread`): the warmup from the mode (`states`
+        None), then draws in pages of units of similar trajectory length; or (`states`,
+        {group: its chains' last state}) draws that extend them. Returns `(draws (in the order of rows), {group:
         (the units' positions in the group, their state after, the warmup's page size,
         their warmup leapfrog steps)})`."""
         parts = list(self.split(rows))
@@ -509,12 +509,13 @@ class _Run:
         try:
             warm, page = {}, {}
             if fresh:
-                calls, cuts = [], []
+                calls, costs, cuts = [], [], []
                 for (i, _, local), k in zip(parts, keys):
-                    c, cut, page[i] = warm_calls(self.groups[i].prep, self.su, sampler,
-                                                  local, k, first.get(i), self.show)
-                    calls, cuts = calls + c, cuts + [(i, x) for x in cut]
-                outs = spread(calls, [x.size * self.weight(i) for i, x in cuts])
+                    c, co, cut, page[i] = warm_calls(self.groups[i].prep, self.su, sampler,
+                                                     local, k, first.get(i), self.weight(i),
+                                                     self.show)
+                    calls, costs, cuts = calls + c, costs + co, cuts + [(i, x) for x in cut]
+                outs = spread(calls, costs)
                 states = {}
                 for i, _, local in parts:
                     states[i], warm[i] = group_out(cuts, outs, i, local.size)
@@ -524,9 +525,9 @@ class _Run:
                 st = states[i] if fresh else take(states[i], local)
                 most = page.get(i) or page_size(sampler, local.size, first.get(i))
                 c, co, cut, shares[i] = draw_calls(self.groups[i].prep, self.su, sampler,
-                                                    local, k, st, most, fresh, self.show)
-                calls, cuts = calls + c, cuts + [(i, x) for x in cut]
-                costs += [x * self.weight(i) for x in co]
+                                                   local, k, st, most, self.weight(i), fresh,
+                                                   self.show)
+                calls, costs, cuts = calls + c, costs + co, cuts + [(i, x) for x in cut]
             outs = spread(calls, costs)
             self.tally("draws" if round_ == 0 else "continuations", t0)
         finally:
@@ -536,7 +537,7 @@ class _Run:
         joined, extra = [], {}
         for i, pos, local in parts:
             *draws, after = whole(group_out(cuts, outs, i, local.size * shares[i]),
-                                   shares[i])
+                                  shares[i])
             joined.append(tuple(draws))
             extra[i] = (local, after, page.get(i), warm.get(i))
         return join(rows.size, [pos for _, pos, _ in parts], joined), extra
@@ -547,7 +548,7 @@ class _Run:
         draws, extra = self.paged(sampler, rows, round_, first)
         C = sampler.chains
         step = join(rows.size, [pos for _, pos, _ in self.split(rows)],
-                     [(e[1].step_size, e[3]) for e in extra.values()])
+                    [(e[1].step_size, e[3]) for e in extra.values()])
         out = (*draws, np.repeat(step[0][:, None], C, 1), np.repeat(step[1][:, None], C, 1))
         return self.post(sampler, out), extra
 
