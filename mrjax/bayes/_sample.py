@@ -497,9 +497,9 @@ class _Run:
         """ChEES chains of the units `rows`, every group's pages spread over the devices
         together (:func:`mrjax.bayes._pages.spread`): the warmup from the mode (`states`
         None), then draws in pages of units of similar trajectory length; or (`states`,
-        {group: its chains' last state}) draws that extend them. Returns `(draws (in the order of rows), {group:
-        (the units' positions in the group, their state after, the warmup's page size,
-        their warmup leapfrog steps)})`."""
+        {group: its chains' last state}) draws that extend them. Returns `(draws (in the
+        order of rows), {group: (the units' positions in the group, their state after, the
+        warmup's page size, their warmup leapfrog steps)})`."""
         parts = list(self.split(rows))
         keys = [_unit_keys(self.key, rows[pos], sampler.chains, round_) for _, pos, _ in parts]
         fresh = states is None
