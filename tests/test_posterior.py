@@ -362,6 +362,8 @@ def test_start_is_the_posterior_mode_with_its_hessian():
 
 SPREAD = """
 import json, sys
+import jax
+import jax.numpy as jnp
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_posterior import Line, line_data, ols
@@ -385,8 +387,15 @@ meet = threading.Barrier(2, timeout=60)  # broken unless both devices' calls run
 def on_device(x):
     meet.wait()
     return next(iter(x.devices())).id
+compiles = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda e, d, **k: compiles.append(e) if e.endswith("backend_compile_duration") else None)
+twice = jax.jit(lambda x: jnp.sin(x) * 2.0)
+once = spread([(twice, (np.zeros(3),)), (twice, (np.ones(3),))], [2.0, 1.0])
+compiled = len(compiles)
 print(json.dumps({"devices": chain_devices(s),
-                  "together": spread([(on_device, (np.zeros(1),))] * 2, [2.0, 1.0]),
+                  "together": spread([(on_device, (jnp.zeros(1),))] * 2, [2.0, 1.0]),
+                  "compiled": compiled, "once": np.asarray(once).tolist(),
                   "z": (np.abs(th.mean(1) - est) / se).tolist(),
                   "sd": (th.std(1) / se).tolist(), "r_hat": post.diagnostics()["r_hat_max"],
                   "z3": (np.abs(th3.mean(1) - est3) / se3).tolist(),
@@ -396,9 +405,9 @@ print(json.dumps({"devices": chain_devices(s),
 
 def test_chains_spread_over_cpu_devices():
     """With 2 CPU devices (JAX_NUM_CPU_DEVICES, as `mrjax fit --posterior` sets it) a unit's 4
-    NUTS chains run 2 per device, and ChEES's 3 units in pages on each device (one program
-    per device, no collective, the devices at once), and the posterior is still the
-    least-squares one."""
+    NUTS chains run 2 per device, and ChEES's 3 units in pages on each device (no collective,
+    the devices at once; on a CPU all on its first device, each program compiled once), and
+    the posterior is still the least-squares one."""
     import os
     import subprocess
     import sys
@@ -409,7 +418,10 @@ def test_chains_spread_over_cpu_devices():
     assert p.returncode == 0, p.stderr[-2000:]
     out = json.loads(p.stdout.strip().splitlines()[-1])
     assert out["devices"] == 2
-    assert out["together"] == [0, 1]  # each call on its device, both at once
+    # CPU devices are one memory: both calls on the first, at once, one program compiled
+    assert out["together"] == [0, 0]
+    assert out["compiled"] == 1
+    np.testing.assert_allclose(out["once"], [np.zeros(3), 2.0 * np.sin(np.ones(3))])
     np.testing.assert_array_less(out["z"], 0.3)
     np.testing.assert_allclose(out["sd"], 1.0, atol=0.2)
     assert out["r_hat"] < 1.02

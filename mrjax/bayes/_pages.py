@@ -1,11 +1,12 @@
 """Pages of units and where they run: how the sampler's compiled calls are cut and spread over
 the CPU devices (or the one accelerator).
 
-A call runs one page of units, padded to one compiled shape; several CPU devices each run
-calls of their own side by side (no collective between them: XLA aborts a program whose
-devices wait for each other's collective longer than 40 s). The calls are given to the
+A call runs one page of units, padded to one compiled shape. The calls are given to the
 devices longest first, each to the device with the least work so far (:func:`assign`), one
-host thread per device, so that the devices stay busy to the end.
+host thread per device, so that the devices stay busy to the end; each device runs calls of
+its own, no collective between them (XLA aborts a program whose devices wait for each other's
+collective longer than 40 s). Several CPU devices (`JAX_NUM_CPU_DEVICES`) are so many threads
+running calls side by side on the first device (:func:`spread`).
 ChEES's draws run in pages of units of similar adapted trajectory length
 (:func:`sorted_pages`): a vmapped page advances at its longest trajectory, so a short unit
 paged with a long one waits for it.
@@ -119,17 +120,23 @@ def spread(calls: list[tuple[Callable, tuple]], costs: Sequence[float] | None = 
     turn), each device's costliest first, the devices side by side: one host thread per
     device (a compiled call of `equinox.filter_jit` returns only when its outputs are ready,
     so calls made one after another from one thread would run one device at a time). Their
-    host outputs in the order of `calls`."""
+    host outputs in the order of `calls`.
+
+    CPU devices share one memory and the same cores: there the threads all run their calls on
+    the first device, side by side, so that a program is compiled once rather than once per
+    device (JAX compiles a program for each device it runs on, and a dynamic model's sampler
+    takes 10-20 s to compile)."""
     devices = jax.local_devices()
     costs = np.ones(len(calls)) if costs is None else np.asarray(costs, float)
     where, _ = assign(costs, len(devices))
     order = np.argsort(-costs, kind="stable")
+    place = len(devices) > 1 and devices[0].platform != "cpu"
 
     def run(d: int) -> list:
         done = []
         for i in order[where[order] == d]:
             fn, args = calls[i]
-            if len(devices) > 1:
+            if place:
                 args = jax.device_put(args, devices[d])
             done.append((i, jax.device_get(fn(*args))))
         return done
