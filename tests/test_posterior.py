@@ -393,7 +393,14 @@ jax.monitoring.register_event_duration_secs_listener(
 twice = jax.jit(lambda x: jnp.sin(x) * 2.0)
 once = spread([(twice, (np.zeros(3),)), (twice, (np.ones(3),))], [2.0, 1.0])
 compiled = len(compiles)
-print(json.dumps({"devices": chain_devices(s),
+from mrjax.bayes._calls import by_units
+cut, meet2 = [], threading.Barrier(2, timeout=60)
+def paged(x):  # a page of units, both pages at once
+    cut.append(x.shape[0])
+    meet2.wait()
+    return 2.0 * jnp.sin(x)
+mapped = by_units(paged, 5, np.arange(5.0))
+print(json.dumps({"devices": chain_devices(s), "cut": cut, "mapped": mapped.tolist(),
                   "together": spread([(on_device, (jnp.zeros(1),))] * 2, [2.0, 1.0]),
                   "compiled": compiled, "once": np.asarray(once).tolist(),
                   "z": (np.abs(th.mean(1) - est) / se).tolist(),
@@ -406,8 +413,9 @@ print(json.dumps({"devices": chain_devices(s),
 def test_chains_spread_over_cpu_devices():
     """With 2 CPU devices (JAX_NUM_CPU_DEVICES, as `mrjax fit --posterior` sets it) a unit's 4
     NUTS chains run 2 per device, and ChEES's 3 units in pages on each device (no collective,
-    the devices at once; on a CPU all on its first device, each program compiled once), and
-    the posterior is still the least-squares one."""
+    the devices at once; on a CPU all on its first device, each program compiled once), the
+    mode search's units one page per device, and the posterior is still the least-squares
+    one."""
     import os
     import subprocess
     import sys
@@ -421,6 +429,9 @@ def test_chains_spread_over_cpu_devices():
     # CPU devices are one memory: both calls on the first, at once, one program compiled
     assert out["together"] == [0, 0]
     assert out["compiled"] == 1
+    # the mode search's units: one page per device (padded to one shape), side by side
+    assert out["cut"] == [3, 3]
+    np.testing.assert_allclose(out["mapped"], 2.0 * np.sin(np.arange(5.0)))
     np.testing.assert_allclose(out["once"], [np.zeros(3), 2.0 * np.sin(np.ones(3))])
     np.testing.assert_array_less(out["z"], 0.3)
     np.testing.assert_allclose(out["sd"], 1.0, atol=0.2)

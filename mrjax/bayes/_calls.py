@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._chains import LockstepState, extend_lockstep, warm_lockstep
-from ._pages import page_cost, page_size, pages, shared_pages
+from ._pages import page_cost, page_size, pages, shared_pages, spread
 from ._sampler import Sampler, warmup_vectorized
 
 
@@ -33,6 +33,16 @@ def join(n: int, cuts: list[np.ndarray], outs: list):
         return full
 
     return jax.tree.map(put, *outs)
+
+
+def by_units(fn, n: int, *args):
+    """`fn(*args)` for arguments with a leading axis of `n` units, the units cut into one page
+    per device (padded to one shape: one compiled program) and the pages run side by side
+    (:func:`mrjax.bayes._pages.spread`): the outputs as one pytree of host arrays of `n`
+    units. For an `fn` that maps its units one at a time (`lax.map`), each unit's result does
+    not depend on the cut (to rounding)."""
+    cuts = pages(n, -(-n // max(min(jax.local_device_count(), n), 1)))
+    return join(n, cuts, spread([(fn, take(args, c)) for c in cuts]))
 
 
 def group_out(cuts: list, outs: list, group: int, n: int):

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InputError
-from ._calls import draw_calls, group_out, join, take, warm_calls, whole
+from ._calls import by_units, draw_calls, group_out, join, take, warm_calls, whole
 from ._chains import run_chains
 from ._noise import check_noise, lag_grams
 from ._pages import page_size, spread
@@ -160,8 +160,9 @@ def _at_mode(lk: Likelihood, su: _Setup, st, every, target: Target, z0, L) -> _P
                                                                           st.masks)),
                     masks=tuple(jnp.asarray(m) for m in st.masks))
 
-    z, m = laplace(*jax.device_get(find_mode(target, su.prior_data, arrays(every, []),
-                                             jnp.asarray(z0), jnp.asarray(L))), z0, L)
+    mode = lambda *a: find_mode(target, su.prior_data, *a)  # the units split over the devices
+    z, m = laplace(*by_units(mode, U, arrays(every, []), jnp.asarray(z0), jnp.asarray(L)),
+                   z0, L)
     Kf, Km = len(free), len(every)
     cov = m @ np.swapaxes(m, 1, 2)
     with np.errstate(invalid="ignore"):
@@ -280,8 +281,8 @@ def _prepare(lk: Likelihood, su: _Setup, sampler: Sampler, noise: str) -> list[_
     rows = np.arange(su.theta0.shape[0])
     if lk.exact is None:
         return _by_length(lk, [_Group(rows, prep)])
-    err = np.asarray(gradient_error(prep.target, su.prior_data, prep.units,
-                                    jnp.asarray(prep.z0), jnp.asarray(prep.L)))
+    err = np.asarray(by_units(lambda *a: gradient_error(prep.target, su.prior_data, *a),
+                              rows.size, prep.units, jnp.asarray(prep.z0), jnp.asarray(prep.L)))
     bad = ~(err <= GRADIENT_TOL)
     groups = []
     if not bad.all():
