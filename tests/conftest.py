@@ -24,6 +24,18 @@ def utfsm_dir() -> Path | None:
     return d.resolve() if d is not None and d.is_dir() and any(d.glob("*A.txt")) else None
 
 
+#: Most test processes of `pytest -n auto` (`pytest-xdist`, set in `pyproject.toml`): each
+#: compiles its own programs and holds its own caches.
+MAX_WORKERS = 4
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """Processes of `-n auto`: one per core this process may run on, at most `MAX_WORKERS`
+    (a test file runs whole in one of them, `--dist loadfile`: its fixtures are made once)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(cores or 1, MAX_WORKERS))
+
+
 @pytest.fixture(autouse=True)
 def _release_compiled_code():
     """The suite compiles thousands of programs in one process; XLA:CPU maps each one's code
