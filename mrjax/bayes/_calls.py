@@ -41,7 +41,7 @@ def by_units(fn, n: int, *args):
     (:func:`mrjax.bayes._pages.spread`): the outputs as one pytree of host arrays of `n`
     units. For an `fn` that maps its units one at a time (`lax.map`), each unit's result does
     not depend on the cut (to rounding)."""
-    cuts = pages(n, -(-n // max(min(jax.local_device_count(), n), 1)))
+    cuts = pages(n, max(-(-n // max(jax.local_device_count(), 1)), 1))
     return join(n, cuts, spread([(fn, take(args, c)) for c in cuts]))
 
 
