@@ -38,9 +38,10 @@ def bw_zdot_lin(z, u, delta, beta, gamma, n):
     Speed (this runs C x N x steps times per sample): one `log` and one `exp` for the value and
     both derivatives ($|z|^{n-1}$ as `exp((n-1) log|z|)`, which XLA:CPU vectorises where `pow`
     is a scalar libm call, then $|z|^n = |z|\,|z|^{n-1}$); signs as selects. 0 at z = 0 with
-    finite gradients (the `safe_abs_pow` convention). d zdot/dz is clipped at 0: it is positive
-    only on the unstable unloading branch of beta > gamma, where it could only make the Newton
-    matrix of the L-stable scheme singular (it enters no solution, only the iteration)."""
+    finite gradients (the `safe_abs_pow` convention). d zdot/dz is positive only on the
+    unstable unloading branch of beta > gamma; the models' Newton matrices clip it at 0 there,
+    where it could only make the L-stable scheme's Newton matrix singular (it enters no
+    solution, only the iteration), while their Jacobians keep it (the implicit tangent's)."""
     a = jnp.abs(z)
     nz = a > 0
     q = jnp.where(nz, jnp.exp((n - 1.0) * jnp.log(jnp.where(nz, a, 1.0))), 0.0)
@@ -50,7 +51,7 @@ def bw_zdot_lin(z, u, delta, beta, gamma, n):
     su = jnp.where(u >= 0, one, -one)
     au = jnp.abs(u)
     zd = delta * u - beta * u * pw - gamma * au * sz * pw
-    dz = jnp.minimum(-n * q * (beta * u * sz + gamma * au), 0.0)
+    dz = -n * q * (beta * u * sz + gamma * au)
     du = delta - (beta + gamma * su * sz) * pw
     return zd, dz, du
 
@@ -154,7 +155,7 @@ class BoucWen(AbstractModel):
         def rhs(state, xi, vi, p):
             return _bw_zdot(state, vi, *shape(p))
 
-        def lin(state, xi, vi, p):
+        def lin(state, xi, vi, p):  # the scalar Newton step clips d zdot/dz at 0 itself
             zd, dz, _ = bw_zdot_lin(state[0], vi, *shape(p))
             return zd[None], dz[None, None]
 
@@ -245,14 +246,18 @@ class ModifiedBoucWen(AbstractModel):
             return jnp.stack([yd, _bw_zdot(state[1], vi - yd, *shape(p))])
 
         def lin(state, xi, vi, p):
-            # J = [[-k0/D, alpha/D], [Z_u k0/D, Z_z - Z_u alpha/D]], D = c0 + c1, u = xdot - ydot
+            # J = [[-k0/D, alpha/D], [Z_u k0/D, Z_z - Z_u alpha/D]], D = c0 + c1, u = xdot - ydot;
+            # the Newton matrix the same with Z_z clipped at 0 (see `bw_zdot_lin`)
             c0, k0, c1, alpha = split_theta(p, names, "c0", "k0", "c1", "alpha")
             D = c0 + c1
             yd = ydot_of(state, xi, vi, p)
             zd, zz, zu = bw_zdot_lin(state[1], vi - yd, *shape(p))
-            J = jnp.stack([jnp.stack([-k0 / D, alpha / D]),
-                           jnp.stack([zu * k0 / D, zz - zu * alpha / D])])
-            return jnp.stack([yd, zd]), J
+
+            def jac(zz):
+                return jnp.stack([jnp.stack([-k0 / D, alpha / D]),
+                                  jnp.stack([zu * k0 / D, zz - zu * alpha / D])])
+
+            return jnp.stack([yd, zd]), jac(zz), jac(jnp.minimum(zz, 0.0))
 
         def box(p):
             zm = bw_zmax(*shape(p))

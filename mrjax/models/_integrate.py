@@ -46,7 +46,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 #: `rhs(state, x, xdot, theta) -> dstate/dt` for one instant.
 RHS = Callable[[Array, Array, Array, Array], Array]
-#: `linearize(state, x, xdot, theta) -> (rhs, J)`, J = d rhs / d state of shape (S, S).
+#: `linearize(state, x, xdot, theta) -> (rhs, J)` or `(rhs, J, M)`, J = d rhs / d state of
+#: shape (S, S), M the matrix the Newton iterates use (default J).
 LIN = Callable[[Array, Array, Array, Array], tuple[Array, Array]]
 #: `box(theta) -> (lower, upper)`, each broadcastable to (S,): a region the state never leaves.
 BOX = Callable[[Array], tuple[ArrayLike, ArrayLike]]
@@ -67,7 +68,10 @@ class ODE(NamedTuple):
         displacement and velocity at the same samples (any leading shape; `theta` (P,) or
         (..., P)).
     - `linearize(state, x, xdot, theta) -> (rhs, J)`, J = d rhs / d state (S, S), for the
-        L-stable scheme (None: forward-mode AD of `rhs`, :func:`linearize_auto`).
+        L-stable scheme (None: forward-mode AD of `rhs`, :func:`linearize_auto`); or
+        `(rhs, J, M)` with M the matrix its Newton iterates use in place of J (e.g. J with an
+        unstable branch's positive entries clipped, which would make it singular): J stays
+        the derivative the implicit tangent solves with.
     - `box(theta) -> (lower, upper)`, each broadcastable to (S,): a region the state never
         leaves (+-inf allowed); the L-stable scheme clips its Newton iterates onto it.
     - `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: a closed-form update over one
@@ -90,6 +94,9 @@ SCHEMES: tuple[str, ...] = ("rk4", "sdirk")
 GAMMA = 1.0 - 1.0 / math.sqrt(2.0)
 #: Newton iterations per SDIRK stage.
 NEWTON = 2
+#: Smallest determinant of the stage matrix $I - ghJ$ the implicit tangent solves with
+#: (:func:`stage_solve`); below it, the guarded Newton matrix.
+TANGENT_DET = 0.5
 #: How :func:`integrate` differentiates the SDIRK scheme (see there).
 TANGENTS: tuple[str, ...] = ("exact", "implicit")
 
@@ -110,14 +117,32 @@ def newton_solve(J: Array, gh: Array, r: Array) -> Array:
     $I - gh\,\mathrm{diag}(\min(J_{ii}, 0))$ (determinant >= 1). The Newton matrix only affects
     convergence, never the solution of the stage equation. S > 2: a plain solve.
     """
+    if J.shape[-1] == 1:
+        return r / (1.0 - gh * jnp.minimum(J[0, 0], 0.0))
+    return _solve(J, gh, r, 1.0 - 1e-6)
+
+
+def stage_solve(J: Array, gh: Array, r: Array) -> Array:
+    r"""Solve $(I - g h J)\,\delta = r$ with the stage equation's own matrix wherever its
+    determinant is at least `TANGENT_DET` (S = 1 or 2), else with :func:`newton_solve`'s
+    guarded one: the implicit tangent's solve (on an unstable branch the derivative is that of
+    the stage's solution, not of the Newton matrix; near a singular stage matrix, where the
+    solution itself turns, the guarded one keeps it finite)."""
+    return _solve(J, gh, r, TANGENT_DET)
+
+
+def _solve(J: Array, gh: Array, r: Array, det_min: float) -> Array:
+    """`(I - gh J)^-1 r` in closed form for S <= 2, the guarded matrix where the determinant
+    is below `det_min`; S > 2: a plain solve."""
     S = J.shape[-1]
     if S == 1:
-        return r / (1.0 - gh * jnp.minimum(J[0, 0], 0.0))
+        a = 1.0 - gh * J[0, 0]
+        return r / jnp.where(a >= det_min, a, 1.0 - gh * jnp.minimum(J[0, 0], 0.0))
     if S == 2:
         a, b = 1.0 - gh * J[0, 0], -gh * J[0, 1]
         c, d = -gh * J[1, 0], 1.0 - gh * J[1, 1]
         det = a * d - b * c
-        bad = ~(det >= 1.0 - 1e-6)  # also catches NaN
+        bad = ~(det >= det_min)  # also catches NaN
         a = jnp.where(bad, 1.0 - gh * jnp.minimum(J[0, 0], 0.0), a)
         d = jnp.where(bad, 1.0 - gh * jnp.minimum(J[1, 1], 0.0), d)
         b = jnp.where(bad, 0.0, b)
@@ -156,27 +181,64 @@ def _rk4_step(rhs: RHS, p, x0, dx, v0, dv, h, m: int):
     return sub
 
 
-def _sdirk_step(lin: LIN, proj, p, x0, dx, v0, dv, h, m: int, tangent: str = "exact"):
+def _newton_lin(lin: LIN) -> Callable:
+    """`lin` giving `(f, J, M)`: a model's `linearize` with its Newton matrix M (J where it
+    gives none)."""
+
+    def out(state, x, v, p):
+        r = lin(state, x, v, p)
+        return tuple(r) if len(r) == 3 else (r[0], r[1], r[1])
+
+    return out
+
+
+def _implicit_newton(rhs: RHS, lin: LIN) -> Callable:
+    """`step(z, base, xs, vs, p, gh)`: the last Newton iterate of a stage from `z`, whose
+    derivative is the implicit-function one, $(I - ghJ)^{-1}$ times the derivative of the
+    stage's inputs, z held. `lin` gives `(f, J, M)` (:func:`_newton_lin`): the iterate uses
+    the Newton matrix M, the derivative J itself. (With M in its place the derivative is off
+    in every step of a branch where they differ, by an error that does not shrink with the
+    step: Bouc-Wen's unloading branch with beta > gamma.)"""
+
+    @jax.custom_jvp
+    def step(z, base, xs, vs, p, gh):
+        f, _, M = lin(z, xs, vs, p)
+        return z - newton_solve(M, gh, z - base - gh * f)
+
+    @step.defjvp
+    def step_jvp(primals, tangents):
+        z, base, xs, vs, p, gh = primals
+        _, dbase, dxs, dvs, dp, dgh = tangents
+        (f, J, M), (df, _, _) = jax.jvp(lambda a, b, q: lin(z, a, b, q), (xs, vs, p),
+                                        (dxs, dvs, dp))
+        out = z - newton_solve(M, gh, z - base - gh * f)
+        return out, stage_solve(J, gh, dbase + dgh * f + gh * df)
+
+    return step
+
+
+def _sdirk_step(rhs: RHS, lin: LIN, proj, p, x0, dx, v0, dv, h, m: int,
+                tangent: str = "exact"):
     """One SDIRK2 sub-step (see the module docstring; `tangent` as for :func:`integrate`)."""
     gh = GAMMA * h
     sg = jax.lax.stop_gradient
+    last = _implicit_newton(rhs, lin) if tangent != "exact" else None
 
     def stage(base, z, s):
         xs, vs = x0 + s * dx, v0 + s * dv
         if tangent == "exact":
             for _ in range(NEWTON):
-                f, J = lin(z, xs, vs, p)
-                z = proj(z - newton_solve(J, gh, z - base - gh * f))
+                f, _, M = lin(z, xs, vs, p)
+                z = proj(z - newton_solve(M, gh, z - base - gh * f))
             return z
-        # "implicit": the same iterates; only the last carries derivatives, with z and the
-        # Newton matrix held constant, so the tangent is (I - g h J)^-1 (d base + g h d f),
-        # the implicit-function derivative of the stage equation at the previous iterate
+        # "implicit": the same iterates; only the last carries derivatives, with z held, so
+        # the tangent is (I - g h J)^-1 (d base + g h d f), the implicit-function derivative
+        # of the stage equation at the previous iterate
         z = sg(z)
         for _ in range(NEWTON - 1):
-            f, J = lin(z, sg(xs), sg(vs), sg(p))
-            z = proj(z - newton_solve(J, sg(gh), z - sg(base) - sg(gh) * f))
-        f, J = lin(z, xs, vs, p)
-        return proj(z - newton_solve(sg(J), gh, z - base - gh * f))
+            f, _, M = lin(z, sg(xs), sg(vs), sg(p))
+            z = proj(z - newton_solve(M, sg(gh), z - sg(base) - sg(gh) * f))
+        return proj(last(z, base, xs, vs, p, gh))
 
     def sub(j, y):
         s0 = jnp.asarray(j, h.dtype) / m
@@ -210,7 +272,7 @@ def _substep(rhs, lin, proj, flow, p, x0, x1, v0, v1, h_all, m: int, scheme: str
     elif scheme == "rk4":
         sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
     else:
-        sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m, tangent)
+        sub = _sdirk_step(rhs, lin, proj, p, x0, dx, v0, dv, h, m, tangent)
     return sub
 
 
@@ -239,7 +301,7 @@ def integrate_step(ode: ODE | RHS, y: Float[ArrayLike, " S"], theta: Float[Array
     _check(scheme, tangent)
     ode = _as_ode(ode)
     y, dt = jnp.asarray(y), jnp.asarray(dt)
-    lin = ode.linearize if ode.linearize is not None else linearize_auto(ode.rhs)
+    lin = _newton_lin(ode.linearize or linearize_auto(ode.rhs))
     proj = _projector(ode.box, theta, y.dtype, y.shape[0])
     return _interval(ode.rhs, lin, proj, ode.flow, y, theta, x0, x1, v0, v1, dt, int(substeps),
                      scheme, tangent)
@@ -302,7 +364,7 @@ def integrate(
     # forward-mode code grow with m squared
     xs = tuple(jnp.repeat(a, m, axis=0) for a in xs) + (jnp.tile(jnp.arange(m), n - 1),)
     rhs, flow = ode.rhs, ode.flow
-    lin = ode.linearize if ode.linearize is not None else linearize_auto(rhs)
+    lin = _newton_lin(ode.linearize or linearize_auto(rhs))
     S = y0.shape[0]
 
     def projector(p):
