@@ -48,7 +48,7 @@ from jaxtyping import Array, ArrayLike, Float
 RHS = Callable[[Array, Array, Array, Array], Array]
 #: `linearize(state, x, xdot, theta) -> (rhs, J)` or `(rhs, J, M)`, J = d rhs / d state of
 #: shape (S, S), M the matrix the Newton iterates use (default J).
-LIN = Callable[[Array, Array, Array, Array], tuple[Array, Array]]
+LIN = Callable[[Array, Array, Array, Array], tuple[Array, ...]]
 #: `box(theta) -> (lower, upper)`, each broadcastable to (S,): a region the state never leaves.
 BOX = Callable[[Array], tuple[ArrayLike, ArrayLike]]
 #: `flow(state, theta, (x0, v0), (x1, v1), h) -> state`: closed-form update over one step.
@@ -192,7 +192,7 @@ def _newton_lin(lin: LIN) -> Callable:
     return out
 
 
-def _implicit_newton(rhs: RHS, lin: LIN) -> Callable:
+def _implicit_newton(lin: LIN) -> Callable:
     """`step(z, base, xs, vs, p, gh)`: the last Newton iterate of a stage from `z`, whose
     derivative is the implicit-function one, $(I - ghJ)^{-1}$ times the derivative of the
     stage's inputs, z held. `lin` gives `(f, J, M)` (:func:`_newton_lin`): the iterate uses
@@ -217,12 +217,11 @@ def _implicit_newton(rhs: RHS, lin: LIN) -> Callable:
     return step
 
 
-def _sdirk_step(rhs: RHS, lin: LIN, proj, p, x0, dx, v0, dv, h, m: int,
-                tangent: str = "exact"):
+def _sdirk_step(lin: LIN, proj, p, x0, dx, v0, dv, h, m: int, tangent: str = "exact"):
     """One SDIRK2 sub-step (see the module docstring; `tangent` as for :func:`integrate`)."""
     gh = GAMMA * h
     sg = jax.lax.stop_gradient
-    last = _implicit_newton(rhs, lin) if tangent != "exact" else None
+    last = _implicit_newton(lin) if tangent != "exact" else None
 
     def stage(base, z, s):
         xs, vs = x0 + s * dx, v0 + s * dv
@@ -272,7 +271,7 @@ def _substep(rhs, lin, proj, flow, p, x0, x1, v0, v1, h_all, m: int, scheme: str
     elif scheme == "rk4":
         sub = _rk4_step(rhs, p, x0, dx, v0, dv, h, m)
     else:
-        sub = _sdirk_step(rhs, lin, proj, p, x0, dx, v0, dv, h, m, tangent)
+        sub = _sdirk_step(lin, proj, p, x0, dx, v0, dv, h, m, tangent)
     return sub
 
 
